@@ -1,0 +1,74 @@
+"""Named physical effects: each a switch, composable, with its own parameters.
+
+The sim-to-real study turns these on and off one at a time, so every effect
+is independent of the others and documented in one line here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicsEffects:
+    """Switches (and parameters) of the unmodelled-by-default physical effects."""
+
+    aero_lift: bool = False
+    """Thin-plate lift perpendicular to the relative air flow (C_l = ``lift_coefficient``)."""
+    air_damping: bool = False
+    """Isotropic linear drag relative to the air, ``air_damping_coefficient`` kg/(m²·s)."""
+    gusty_wind: bool = False
+    """Wind varying in space and time (random travelling waves, ``gust_amplitude`` of the mean)."""
+    self_collision: bool = False
+    """Repulsion between non-neighbouring cloth vertices closer than ``self_collision_radius``."""
+    internal_damping: bool = False
+    """Strain-rate (stiffness-proportional Rayleigh) damping, time ``internal_damping_beta`` s."""
+    strain_dependent_stiffness: bool = True
+    """Stiffness follows the measured strain/curvature samples; off = zero-strain values only."""
+    anisotropic_stiffness: bool = True
+    """Direction-dependent stiffness as measured; off = isotropic average."""
+
+    lift_coefficient: float = 0.5
+    air_damping_coefficient: float = 0.05
+    gust_amplitude: float = 0.4
+    gust_modes: int = 4
+    self_collision_radius: float = 0.012
+    internal_damping_beta: float = 2.0e-3
+
+    def __post_init__(self):
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if field.type == "bool" and not isinstance(value, bool):
+                raise ValueError(f"effects.{field.name} must be true or false, got {value!r}")
+        for name in (
+            "lift_coefficient",
+            "air_damping_coefficient",
+            "gust_amplitude",
+            "self_collision_radius",
+            "internal_damping_beta",
+        ):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"effects.{name} must be >= 0, got {getattr(self, name)}")
+        if self.gust_modes < 1:
+            raise ValueError(f"effects.gust_modes must be >= 1, got {self.gust_modes}")
+
+    def enabled(self) -> dict[str, bool]:
+        """The switch values by name."""
+        return {name: getattr(self, name) for name in PHYSICS_EFFECT_NAMES}
+
+    @staticmethod
+    def from_dict(values: dict | None) -> PhysicsEffects:
+        """Build from a (config) mapping; unknown keys raise, naming them and the allowed keys."""
+        values = dict(values or {})
+        allowed = {f.name for f in dataclasses.fields(PhysicsEffects)}
+        unknown = sorted(set(values) - allowed)
+        if unknown:
+            raise ValueError(f"effects: unknown {unknown}; allowed: {sorted(allowed)}")
+        return PhysicsEffects(**values)
+
+
+PHYSICS_EFFECT_NAMES: tuple[str, ...] = tuple(
+    f.name for f in dataclasses.fields(PhysicsEffects) if f.type == "bool"
+)

@@ -1,0 +1,48 @@
+"""Internal (strain-rate) damping: stiffness-proportional Rayleigh damping.
+
+``f = -beta K(x_n) v`` with ``K`` the solver's PSD stiffness blocks of the elastic
+energies at the start of the step, so only deformation rates are damped (rigid
+motion is not, since ``K`` annihilates it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from ..energies.base import ElementBlocks
+from .base import Force, StepForce
+
+__all__ = ["StrainRateDamping"]
+
+
+@dataclasses.dataclass(frozen=True)
+class StrainRateDamping(Force):
+    """Rayleigh damping of the elastic terms."""
+
+    beta: float = 2.0e-3
+    """Stiffness-proportional damping time [s]."""
+    elastic_types: tuple = ()
+    """Energy classes counted as elastic; empty means membrane, bending and springs."""
+
+    def linearize(self, model, state, control, energies):
+        """``D = beta K`` from the elastic energies' blocks."""
+        from ..energies import EnergyBendingDihedral, EnergyMassSpring, EnergyMembraneWang
+
+        kinds = self.elastic_types or (EnergyMembraneWang, EnergyBendingDihedral, EnergyMassSpring)
+        parts = [e.hessian_blocks(model, state.pos) for e in energies if isinstance(e, kinds)]
+        parts = [p for p in parts if p is not None]
+        if not parts:
+            return StepForce()
+        width = max(p.flat_indices.shape[1] for p in parts)
+        # Pad element blocks to one width so a single ElementBlocks holds them all.
+        idx, blk = [], []
+        for p in parts:
+            n, k = p.flat_indices.shape
+            pad = width - k
+            idx.append(torch.cat([p.flat_indices, p.flat_indices[:, :1].expand(n, pad)], 1))
+            b = p.blocks.new_zeros(n, 3 * width, 3 * width)
+            b[:, : 3 * k, : 3 * k] = p.blocks
+            blk.append(b)
+        return StepForce(damping_blocks=ElementBlocks(torch.cat(idx), self.beta * torch.cat(blk)))

@@ -1,0 +1,113 @@
+"""Integrator protocol and the incremental-potential objective shared by the solvers."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from ..energies.base import ElementBlocks
+from ..solvers.block_sparse import BlockSparse
+
+__all__ = ["IncrementalPotential", "SimulationDiverged"]
+
+
+class SimulationDiverged(RuntimeError):
+    """A rollout produced NaN/inf or a velocity beyond the bound (names instance and step)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class IncrementalPotential:
+    """``1/(2h²)|x - x_pred|²_M + sum E(x) + h sum_f [1/2 u^T D u - f^T v]``, v = (x - x_n)/h.
+
+    With ``dt = None`` it is the static potential ``sum E(x)`` (plus a tiny
+    Levenberg shift for SPD-ness), used for equilibrium solves.
+    """
+
+    model: object
+    energies: tuple
+    step_forces: tuple
+    x_start: torch.Tensor
+    """Positions at the start of the step [m], shape (B, V, 3)."""
+    x_pred: torch.Tensor
+    """Inertial prediction ``x_n + h v_n`` [m], shape (B, V, 3)."""
+    dt: float | None
+    regularization: float = 0.0
+    """Levenberg shift [N/m] added to the Hessian diagonal (static solves)."""
+
+    def _mass(self) -> torch.Tensor:
+        return self.model.vert_mass[..., None]
+
+    def value(self, x):
+        """Objective per instance, shape (B,)."""
+        total = sum(e.energy(self.model, x) for e in self.energies)
+        if self.dt is None:
+            return total
+        h = self.dt
+        total = total + 0.5 / (h * h) * (self._mass() * (x - self.x_pred) ** 2).sum(dim=(1, 2))
+        vel = (x - self.x_start) / h
+        for f in self.step_forces:
+            total = total + h * f.power_potential(vel)
+        return total
+
+    def gradient(self, x):
+        """Gradient [N], shape (B, V, 3)."""
+        grad = sum(e.gradient(self.model, x) for e in self.energies)
+        if self.dt is None:
+            return grad
+        h = self.dt
+        grad = grad + self._mass() / (h * h) * (x - self.x_pred)
+        vel = (x - self.x_start) / h
+        for f in self.step_forces:
+            grad = grad - f.force(vel)
+        return grad
+
+    def hessian(self, x):
+        """``(matvec, diag_blocks)`` of the SPD approximation."""
+        batch, verts = x.shape[:2]
+        eye = torch.eye(3, dtype=x.dtype, device=x.device)
+        if self.dt is None:
+            diag = x.new_full((batch, verts, 1, 1), self.regularization) * eye
+        else:
+            diag = (self._mass() / (self.dt * self.dt))[..., None] * eye
+        sparse = BlockSparse.zeros(self.model.pattern, batch, x) if self.model.pattern else None
+        loose: list[ElementBlocks] = []
+        for energy in self.energies:
+            b = energy.hessian_blocks(self.model, x)
+            if b is None:
+                continue
+            if sparse is not None and b.topology is not None:
+                n = b.topology.shape[0]
+                sparse.add_elements(b.topology, b.blocks.view(batch, n, *b.blocks.shape[1:]))
+            else:
+                loose.append(b)
+        forces = self.step_forces if self.dt is not None else ()
+        inv_h = 0.0 if self.dt is None else 1.0 / self.dt
+        for f in forces:
+            if f.damping_vertex is not None:
+                diag = diag + inv_h * f.damping_vertex
+            if f.damping_blocks is not None:
+                loose.append(
+                    dataclasses.replace(f.damping_blocks, blocks=inv_h * f.damping_blocks.blocks)
+                )
+        if sparse is not None:
+            sparse.add_vertex_blocks(diag)
+            full_diag = sparse.diagonal()
+            sparse = sparse.finalize()
+        else:
+            full_diag = diag
+        for b in loose:
+            full_diag = full_diag + b.diagonal_blocks(batch * verts).view(batch, verts, 3, 3)
+
+        def matvec(v):
+            out = sparse.matvec(v) if sparse is not None else (diag @ v[..., None])[..., 0]
+            flat = v.reshape(-1, 3)
+            for b in loose:
+                out = out + b.matvec(flat).view_as(v)
+            return out
+
+        # Vertices without any stiffness (static solve, pinned) keep an invertible block.
+        full_diag = (
+            full_diag + (full_diag.diagonal(dim1=-2, dim2=-1).sum(-1) <= 0)[..., None, None] * eye
+        )
+        return matvec, full_diag

@@ -1,0 +1,134 @@
+"""Mesh sequences: the simulator's output, one documented file format and exporters.
+
+File format (``.npz``, written atomically, never containing NaN):
+
+* ``pos`` float32 (B, K, V, 3): vertex positions [m] per instance and frame;
+* ``tri_indices`` int64 (F, 3); ``uv`` float32 (V, 2): material coordinates [m];
+* ``fps`` float64 scalar; ``seeds``, ``labels`` (class id, -1 if none), ``wind_levels`` int64 (B,);
+* ``meta_json``: UTF-8 JSON with the scene, scenario parameters, effects, solver
+  settings and per-instance material values (``schema_version`` inside).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["SCHEMA_VERSION", "MeshSequence", "atomic_write_bytes"]
+
+SCHEMA_VERSION = 1
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@dataclasses.dataclass(frozen=True)
+class MeshSequence:
+    """Recorded frames of B simulated cloth instances."""
+
+    pos: np.ndarray
+    """Vertex positions [m], float32, shape (B, K, V, 3)."""
+    tri_indices: np.ndarray
+    """Triangles, int64, shape (F, 3)."""
+    uv: np.ndarray
+    """Material coordinates [m], float32, shape (V, 2)."""
+    fps: float
+    seeds: list[int]
+    labels: list[int]
+    wind_levels: list[int]
+    meta: dict
+
+    @property
+    def frame_count(self) -> int:
+        """K."""
+        return int(self.pos.shape[1])
+
+    def save(self, path: str | Path) -> Path:
+        """Write the ``.npz`` atomically; refuses non-finite positions."""
+        if not np.isfinite(self.pos).all():
+            raise ValueError("MeshSequence.pos contains NaN/inf; refusing to write it")
+        import io
+
+        buffer = io.BytesIO()
+        meta = dict(self.meta, schema_version=SCHEMA_VERSION)
+        np.savez_compressed(
+            buffer,
+            pos=self.pos.astype(np.float32),
+            tri_indices=self.tri_indices.astype(np.int64),
+            uv=self.uv.astype(np.float32),
+            fps=np.float64(self.fps),
+            seeds=np.asarray(self.seeds, dtype=np.int64),
+            labels=np.asarray(self.labels, dtype=np.int64),
+            wind_levels=np.asarray(self.wind_levels, dtype=np.int64),
+            meta_json=np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8),
+        )
+        path = Path(path)
+        atomic_write_bytes(path, buffer.getvalue())
+        return path
+
+    @staticmethod
+    def load(path: str | Path) -> MeshSequence:
+        """Read a file written by :meth:`save`."""
+        with np.load(path) as data:
+            meta = json.loads(bytes(data["meta_json"]).decode())
+            if meta.get("schema_version") != SCHEMA_VERSION:
+                raise ValueError(
+                    f"{path}: schema_version {meta.get('schema_version')} != {SCHEMA_VERSION}"
+                )
+            return MeshSequence(
+                pos=data["pos"],
+                tri_indices=data["tri_indices"],
+                uv=data["uv"],
+                fps=float(data["fps"]),
+                seeds=data["seeds"].tolist(),
+                labels=data["labels"].tolist(),
+                wind_levels=data["wind_levels"].tolist(),
+                meta=meta,
+            )
+
+    def export(self, out_dir: str | Path, *, instance: int = 0, fmt: str = "obj") -> list[Path]:
+        """Write one ``.obj``/``.ply`` per frame of ``instance`` (with uv), return the paths."""
+        import trimesh
+
+        if fmt not in ("obj", "ply"):
+            raise ValueError(f"format must be 'obj' or 'ply', got {fmt!r}")
+        if not 0 <= instance < self.pos.shape[0]:
+            raise ValueError(f"instance must be in [0, {self.pos.shape[0] - 1}], got {instance}")
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        uv_unit = (self.uv - self.uv.min(0)) / np.maximum(np.ptp(self.uv, axis=0), 1e-12)
+        paths = []
+        for k in range(self.frame_count):
+            mesh = trimesh.Trimesh(
+                vertices=self.pos[instance, k],
+                faces=self.tri_indices,
+                visual=trimesh.visual.TextureVisuals(uv=uv_unit),
+                process=False,
+            )
+            path = out / f"frame_{k:05d}.{fmt}"
+            atomic_write_bytes(
+                path,
+                trimesh.exchange.export.export_mesh(mesh, file_type=fmt).encode()
+                if fmt == "obj"
+                else trimesh.exchange.export.export_mesh(mesh, file_type=fmt),
+            )
+            paths.append(path)
+        return paths

@@ -1,0 +1,31 @@
+"""Shared test helpers: float64 tolerances and a field-naming assert_close."""
+
+import os
+
+import pytest
+import torch
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+RTOL = 1e-6
+ATOL = 1e-9
+
+
+def assert_close(actual, expected, name, *, rtol=RTOL, atol=ATOL):
+    """torch.testing.assert_close with a message naming the compared field."""
+    torch.testing.assert_close(
+        torch.as_tensor(actual),
+        torch.as_tensor(expected),
+        rtol=rtol,
+        atol=atol,
+        msg=lambda m: f"{name}: {m}",
+    )
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    """Tests are small: one intra-op thread avoids oversubscription on 2-core CI."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
