@@ -72,7 +72,7 @@ def build_cloth_model(
     material = material.to(device=device, dtype=dtype)
     if kind is ClothModelKind.DISCRETE_SHELL:
         elastic = (
-            EnergyMembraneWang(
+            EnergyMembraneWang.from_material(
                 material.stretching,
                 strain_dependent=effects.strain_dependent_stiffness,
                 anisotropic=effects.anisotropic_stiffness,

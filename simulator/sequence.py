@@ -124,11 +124,7 @@ class MeshSequence:
                 process=False,
             )
             path = out / f"frame_{k:05d}.{fmt}"
-            atomic_write_bytes(
-                path,
-                trimesh.exchange.export.export_mesh(mesh, file_type=fmt).encode()
-                if fmt == "obj"
-                else trimesh.exchange.export.export_mesh(mesh, file_type=fmt),
-            )
+            data = mesh.export(file_type=fmt)
+            atomic_write_bytes(path, data.encode() if isinstance(data, str) else data)
             paths.append(path)
         return paths
