@@ -84,7 +84,7 @@ def build_problem(n: int = 32, batch: int = 54, seed: int = 0) -> Problem:
     forces = tuple(f.linearize(model, state, control, bound) for f in model.forces)
     dt = 0.005
     obj = IncrementalPotential(model, bound, forces, state.pos, state.pos, dt)
-    hess_matvec, diag = obj.hessian(state.pos)
+    hess_matvec, diag, _ = obj.hessian(state.pos)
 
     # The same BlockSparse as IncrementalPotential.hessian assembles (element blocks with a
     # topology plus per-vertex mass and drag terms); anything else stays in the product only.

@@ -14,6 +14,10 @@ import torch
 
 from .mesh import TriMesh
 from .solvers.block_sparse import BlockPattern
+from .solvers.coarse import grid_aggregates
+
+AGGREGATE_PATCH = 4
+"""Vertices per side of a coarse aggregate (best measured in benchmarks/precond_bench.py)."""
 
 __all__ = ["SimControl", "SimModel", "SimState"]
 
@@ -48,6 +52,8 @@ class SimModel:
     """Vertices held by Dirichlet conditions, int64, shape (P,)."""
     pattern: BlockPattern | None = None
     """Hessian sparsity of the shared-topology energies (see :meth:`with_pattern`)."""
+    aggregates: torch.Tensor | None = None
+    """Coarse-level aggregate id per vertex for the two-level preconditioner, int64 (V,)."""
 
     def with_pattern(self) -> SimModel:
         """Attach the block-sparse Hessian pattern of the mesh's triangles and hinges."""
@@ -55,7 +61,12 @@ class SimModel:
         pattern = BlockPattern.from_topologies(
             mesh.vert_count, [mesh.tri_indices.cpu(), mesh.edge_indices.cpu()]
         )
-        return dataclasses.replace(self, pattern=pattern.to(mesh.tri_indices.device))
+        aggregates = None
+        if mesh.vert_count >= AGGREGATE_PATCH**2 * 4:
+            aggregates = grid_aggregates(mesh.uv.cpu(), AGGREGATE_PATCH).to(mesh.tri_indices.device)
+        return dataclasses.replace(
+            self, pattern=pattern.to(mesh.tri_indices.device), aggregates=aggregates
+        )
 
     @property
     def batch_size(self) -> int:

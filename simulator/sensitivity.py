@@ -37,8 +37,8 @@ __all__ = [
 ]
 
 
-_STATIC = NewtonSettings(max_iters=40, tol_dx=1e-7, cg_rtol=1e-5, cg_max_iters=1000)
-"""Equilibrium accuracy of the tests: 0.1 µm is far below the measured quantities."""
+_STATIC = NewtonSettings(max_iters=40, tol_dx=1e-6, cg_rtol=1e-4, cg_max_iters=500)
+"""Equilibrium accuracy of the tests: 1 µm is far below the measured quantities."""
 
 
 def max_displacement(pos: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
@@ -82,7 +82,7 @@ def stretch_test(material: ClothMaterial, *, vert_per_side: int = 17) -> torch.T
 
 
 def bend_test(
-    material: ClothMaterial, *, settle_time: float = 2.0, dt: float = 0.005
+    material: ClothMaterial, *, settle_time: float = 0.5, dt: float = 0.005
 ) -> torch.Tensor:
     """Cantilever fold test of every instance; returns C [1/m], shape (B,)."""
     nu, nv = 41, 9
@@ -96,7 +96,7 @@ def bend_test(
     state = SimState(rest.clone(), torch.zeros_like(rest), torch.zeros(batch, dtype=rest.dtype))
     control = SimControl(pin_pos=rest[:, clamp])
     integrator = IntegratorBackwardEuler(
-        NewtonSettings(max_iters=3, cg_rtol=1e-4, cg_max_iters=400)
+        NewtonSettings(max_iters=1, cg_rtol=1e-3, cg_max_iters=400)
     )
     for _ in range(round(settle_time / dt)):
         state, _ = integrator.step(model, state, control, dt)

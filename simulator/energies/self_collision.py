@@ -1,7 +1,7 @@
 """Cloth self-collision as a vertex-vertex repulsion penalty.
 
 Candidate pairs are found once per step (vertices closer than ``2 * radius``
-that are not neighbours in the rest mesh) and kept for the Newton iterations of
+that are not also that close in material (uv) space) and kept for the Newton iterations of
 that step; each pair closer than ``radius`` costs ``1/2 k (radius - d)²`` with
 ``k = stiffness * mean vertex area``. A vertex-vertex model needs a radius of
 about the edge length to stop triangles passing through each other; it is the
@@ -39,7 +39,7 @@ class EnergySelfCollision(Energy):
     def find_pairs(self, model, pos: torch.Tensor) -> torch.Tensor:
         """Flat ids of close vertex pairs that are not already close in the rest shape."""
         batch, verts = pos.shape[:2]
-        rest = model.mesh.vert_pos.to(pos)
+        rest = model.mesh.uv.to(pos)  # material-space distance: folded layers still collide
         rest_close = torch.cdist(rest, rest) <= 2.0 * self.radius
         found = []
         with torch.no_grad():

@@ -56,7 +56,9 @@ class IntegratorBackwardEuler:
         x_pred = state.pos + dt * state.vel
         objective = IncrementalPotential(model, energies, step_forces, state.pos, x_pred, dt)
         x0 = _with_pins(model, x_pred, control)
-        x, stats = newton_minimize(objective, x0, model.free_mask(), settings)
+        x, stats = newton_minimize(
+            objective, x0, model.free_mask(), settings, aggregates=model.aggregates
+        )
         vel = (x - state.pos) / dt
         return SimState(pos=x, vel=vel, time=state.time + dt), stats
 

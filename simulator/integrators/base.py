@@ -63,7 +63,7 @@ class IncrementalPotential:
         return grad
 
     def hessian(self, x):
-        """``(matvec, diag_blocks)`` of the SPD approximation."""
+        """``(matvec, diag_blocks (B, V, 3, 3), block_sparse | None)`` of the SPD approximation."""
         batch, verts = x.shape[:2]
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
         if self.dt is None:
@@ -110,4 +110,4 @@ class IncrementalPotential:
         full_diag = (
             full_diag + (full_diag.diagonal(dim1=-2, dim2=-1).sum(-1) <= 0)[..., None, None] * eye
         )
-        return matvec, full_diag
+        return matvec, full_diag, sparse

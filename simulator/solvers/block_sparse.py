@@ -93,9 +93,13 @@ class BlockSparse:
     def add_elements(self, topology: torch.Tensor, blocks: torch.Tensor) -> None:
         """Accumulate element blocks (B, N, k, k, 3, 3) of ``topology`` (N, k) in place."""
         batch = blocks.shape[0]
-        flat = self.values.view(batch, -1, 3, 3)
-        slots = self.pattern.slot_map(topology).reshape(-1)
-        flat.index_add_(1, slots, blocks.reshape(batch, -1, 3, 3))
+        slots = self.pattern.slot_map(topology).reshape(1, -1)
+        per_batch = self.values.shape[1] * self.values.shape[2]
+        offset = torch.arange(batch, device=slots.device)[:, None] * per_batch
+        # One flat index_add over dim 0 is several times faster on CPU than along dim 1.
+        self.values.view(-1, 3, 3).index_add_(
+            0, (slots + offset).reshape(-1), blocks.reshape(-1, 3, 3)
+        )
 
     def add_vertex_blocks(self, blocks: torch.Tensor) -> None:
         """Accumulate per-vertex diagonal blocks (B, V, 3, 3) in place."""

@@ -14,6 +14,7 @@ from typing import Protocol
 import torch
 
 from .cg import conjugate_gradient
+from .coarse import TwoLevelPreconditioner
 
 __all__ = ["NewtonSettings", "Objective", "StepStats", "newton_minimize"]
 
@@ -33,11 +34,19 @@ class NewtonSettings:
     max_halvings: int = 8
     check_every: int = 4
     """CG iterations between convergence checks (host syncs)."""
+    preconditioner: str = "two_level"
+    """``two_level`` (block Jacobi + aggregation coarse solve, when the model has
+    aggregates) or ``jacobi`` (3x3 block Jacobi)."""
 
     def __post_init__(self):
         for name in ("max_iters", "cg_max_iters", "check_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"NewtonSettings.{name} must be >= 1, got {getattr(self, name)}")
+        if self.preconditioner not in ("two_level", "jacobi"):
+            raise ValueError(
+                f"NewtonSettings.preconditioner must be 'two_level' or 'jacobi', "
+                f"got {self.preconditioner!r}"
+            )
         for name in ("tol_dx", "cg_rtol"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"NewtonSettings.{name} must be > 0, got {getattr(self, name)}")
@@ -67,11 +76,16 @@ class Objective(Protocol):
         """Gradient, shape (B, V, 3)."""
 
     def hessian(self, x: torch.Tensor):
-        """``(matvec, diag_blocks (B, V, 3, 3))`` of an SPD Hessian approximation."""
+        """``(matvec, diag_blocks (B, V, 3, 3), BlockSparse | None)`` of an SPD approximation."""
 
 
 def newton_minimize(
-    objective: Objective, x0: torch.Tensor, free: torch.Tensor, settings: NewtonSettings
+    objective: Objective,
+    x0: torch.Tensor,
+    free: torch.Tensor,
+    settings: NewtonSettings,
+    *,
+    aggregates: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, StepStats]:
     """Minimise ``objective`` over the free vertices, starting from ``x0`` (B, V, 3).
 
@@ -80,6 +94,7 @@ def newton_minimize(
         x0: start, with constrained vertices already at their values.
         free: 1 for free, 0 for constrained vertices, shape (V, 1) or (B, V, 1).
         settings: tolerances.
+        aggregates: coarse aggregate per vertex (V,), enabling the two-level preconditioner.
     """
     batch = x0.shape[0]
     device = x0.device
@@ -92,14 +107,18 @@ def newton_minimize(
     value = objective.value(x) if settings.line_search else None
     for _ in range(settings.max_iters):
         grad = objective.gradient(x) * free
-        matvec, diag = objective.hessian(x)
-        diag_inv = torch.linalg.inv(diag)
+        matvec, diag, sparse = objective.hessian(x)
 
         def masked_matvec(v, matvec=matvec):
             return matvec(v * free) * free
 
-        def precond(r, diag_inv=diag_inv):
-            return (diag_inv @ r[..., None])[..., 0] * free
+        if settings.preconditioner == "two_level" and aggregates is not None and sparse is not None:
+            precond = TwoLevelPreconditioner.build(sparse, diag, aggregates, free)
+        else:
+            diag_inv = torch.linalg.inv(diag)
+
+            def precond(r, diag_inv=diag_inv):
+                return (diag_inv @ r[..., None])[..., 0] * free
 
         dx, cg_iters, _ = conjugate_gradient(
             masked_matvec,

@@ -8,9 +8,12 @@ import pytest
 import torch
 import yaml
 
+from simulator.cloth import build_cloth_model
 from simulator.effects import PHYSICS_EFFECT_NAMES, PhysicsEffects
-from simulator.integrators import SimulationDiverged
+from simulator.integrators import IntegratorBackwardEuler, SimulationDiverged
 from simulator.material import CLASS_COUNT, ClothMaterial, load_wang_material
+from simulator.mesh import TriMesh
+from simulator.model import SimControl, SimState
 from simulator.rollout import SimSettings, simulate
 from simulator.scenario import ScenarioArmBend, ScenarioWind
 from simulator.sensitivity import bend_test, stretch_test
@@ -106,25 +109,52 @@ def test_sequence_round_trip_and_export(tmp_path):
     assert loaded.meta["effects"] == dataclasses.asdict(PhysicsEffects())
     files = loaded.export(tmp_path / "obj", fmt="obj")
     assert len(files) == seq.frame_count and files[0].read_text().count("\nv ") == 256
-    files = loaded.export(tmp_path / "ply", fmt="ply")
-    assert files[-1].stat().st_size > 0
+    from simulator.tools.export import main as export_main
+
+    files = export_main([str(path), str(tmp_path / "ply"), "--format", "ply"])
+    assert len(files) == seq.frame_count and files[-1].stat().st_size > 0
     bad = dataclasses.replace(seq, pos=seq.pos * np.nan)
     with pytest.raises(ValueError, match="NaN"):
         bad.save(tmp_path / "nan.npz")
     assert not (tmp_path / "nan.npz").exists()
 
 
-@pytest.mark.parametrize("effect", PHYSICS_EFFECT_NAMES)
+@pytest.mark.parametrize("effect", [e for e in PHYSICS_EFFECT_NAMES if e != "self_collision"])
 def test_each_effect_switch_changes_the_motion(effect):
     scene = ScenarioWind(resolution_level=1, settle_time=0.05)
     base = _run(scene, [20], record_time=0.2)
     default = getattr(PhysicsEffects(), effect)
     effects = PhysicsEffects(**{effect: not default})
-    if effect == "self_collision":
-        effects = dataclasses.replace(effects, self_collision_radius=0.04)
     changed = _run(scene, [20], record_time=0.2, effects=effects)
     assert np.isfinite(changed.pos).all()
     assert np.abs(changed.pos - base.pos).max() > 1e-6, f"{effect} had no effect"
+
+
+def test_self_collision_keeps_folded_layers_apart():
+    """A sheet folded in half: the free top layer falls onto the pinned bottom layer."""
+    n = 9
+    grid = TriMesh.grid(n, size_u=0.1)
+    u, v = grid.uv[:, 0], grid.uv[:, 1]
+    top = v > 0.05 + 1e-9
+    pos = torch.stack([u, torch.where(top, 0.1 - v, v), torch.where(top, 0.015, 0.0)], -1)
+    mesh = TriMesh.from_arrays(pos.numpy(), grid.tri_indices.numpy(), grid.uv.numpy())
+    pins = torch.nonzero(v <= 0.05 + 1e-9).flatten()
+    results = {}
+    for on in (False, True):
+        effects = PhysicsEffects(self_collision=on, self_collision_radius=0.008)
+        model = build_cloth_model(mesh, ClothMaterial.from_classes([20]), pins, effects=effects)
+        state = SimState(
+            pos[None].clone(),
+            torch.zeros(1, n * n, 3, dtype=torch.float64),
+            torch.zeros(1, dtype=torch.float64),
+        )
+        control = SimControl(pin_pos=pos[None, pins])
+        integ = IntegratorBackwardEuler()
+        for _ in range(60):
+            state, _ = integ.step(model, state, control, 0.005)
+        results[on] = state.pos[0, top, 2].min().item()
+    assert results[False] < -0.003, results  # passes through the bottom layer
+    assert results[True] > 0.004, results  # held about one radius above it
 
 
 def test_divergence_is_reported_with_instance_and_step():
@@ -161,7 +191,7 @@ def test_sag_decreases_with_stretch_and_curvature_with_bend():
     mults = [0.5, 1, 2, 3, 10, 20]
     sag = stretch_test(ClothMaterial.from_wang(basis, stretch_mult=mults)).numpy()
     assert (np.diff(sag) < 0).all(), sag
-    curv = bend_test(ClothMaterial.from_wang(basis, bend_mult=mults), settle_time=1.0).numpy()
+    curv = bend_test(ClothMaterial.from_wang(basis, bend_mult=mults)).numpy()
     assert (np.diff(curv) < 0).all(), curv
 
 

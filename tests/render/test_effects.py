@@ -1,0 +1,138 @@
+"""Visual effects: config parsing, and every image-space effect on uint8 clips (no rendering)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from render.effects import (
+    EFFECT_NAMES,
+    IMAGE_EFFECT_ORDER,
+    RENDER_EFFECTS,
+    VisualEffects,
+    apply_image_effects,
+    apply_jpeg,
+    effect_streams,
+    resample_frame_rate,
+    resampled_frame_count,
+    shake_offsets,
+)
+from render.textures import make_texture
+
+
+@pytest.fixture
+def clip():
+    """Four 40 x 40 frames of a textured pattern sliding right by 2 px per frame."""
+    texture = make_texture("random", np.random.default_rng(0), size=64, kinds=["noise"])
+    return np.stack([texture[10:50, 2 * k : 2 * k + 40] for k in range(4)])
+
+
+def test_all_effects_off_by_default_and_partitioned():
+    effects = VisualEffects()
+    assert not any(effects.enabled().values())
+    assert set(EFFECT_NAMES) == set(IMAGE_EFFECT_ORDER) | set(RENDER_EFFECTS)
+    assert len(EFFECT_NAMES) == 10
+
+
+def test_from_dict_names_unknown_keys_and_the_allowed_ones():
+    with pytest.raises(ValueError, match="foo") as info:
+        VisualEffects.from_dict({"foo": 1, "sensor_noise": True})
+    assert "motion_blur" in str(info.value)
+    effects = VisualEffects.from_dict({"compression": True, "jpeg_quality": 80})
+    assert effects.compression and effects.jpeg_quality == 80
+    assert VisualEffects.from_dict(None) == VisualEffects()
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("jpeg_quality", 0),
+        ("jpeg_quality", 101),
+        ("motion_blur_samples", 1),
+        ("motion_blur_shutter", 0.0),
+        ("frame_rate_ratio", -1.0),
+        ("frame_rate_mode", "cubic"),
+        ("sensor_noise", "yes"),
+        ("specular_roughness", 2.0),
+        ("defocus_radius_min_px", 5.0),
+    ],
+)
+def test_bad_parameters_raise_naming_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        VisualEffects(**{field: value})
+
+
+@pytest.mark.parametrize("name", IMAGE_EFFECT_ORDER)
+def test_each_image_effect_changes_the_clip_and_keeps_uint8(clip, name):
+    effects = VisualEffects(**{name: True})
+    out = apply_image_effects(clip, effects, np.random.default_rng(1))
+    assert out.dtype == np.uint8 and out.shape[1:] == clip.shape[1:]
+    if name == "frame_rate":
+        # Default ratio 1/2: 4 frames at times 0..3 -> 2 frames at times 0 and 2.
+        assert out.shape[0] == resampled_frame_count(4, effects.frame_rate_ratio) == 2
+        np.testing.assert_array_equal(out, clip[[0, 2]])
+        # A non-integer ratio blends neighbours: times 0, 2/3, 4/3, 2, 8/3.
+        out = apply_image_effects(
+            clip, VisualEffects(frame_rate=True, frame_rate_ratio=1.5), np.random.default_rng(1)
+        )
+        assert out.shape[0] == 5
+        changed = [np.abs(out[1].astype(int) - clip[k]).mean() for k in (0, 1)]
+        assert min(changed) > 0.5
+    else:
+        assert out.shape[0] == clip.shape[0]
+        assert np.abs(out.astype(int) - clip).mean() > 0.5, name
+    np.testing.assert_array_equal(
+        apply_image_effects(clip, effects, np.random.default_rng(1)),
+        apply_image_effects(clip, effects, np.random.default_rng(1)),
+    )
+
+
+def test_compression_round_trips_through_cv2(clip):
+    import cv2
+
+    out = apply_jpeg(clip, 40)
+    for k in range(clip.shape[0]):
+        ok, data = cv2.imencode(".jpg", clip[k][..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 40])
+        assert ok
+        np.testing.assert_array_equal(out[k], cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1])
+    error = {q: np.abs(apply_jpeg(clip, q).astype(int) - clip).mean() for q in (10, 95)}
+    assert error[95] < error[10]
+    assert error[95] < 5.0
+
+
+def test_frame_rate_modes():
+    clip = np.stack([np.full((2, 2, 3), v, np.uint8) for v in (0, 100, 200)])
+    blend = resample_frame_rate(clip, 2.0, "blend")
+    np.testing.assert_array_equal(blend[:, 0, 0, 0], [0, 50, 100, 150, 200])
+    drop = resample_frame_rate(clip, 2.0, "drop")
+    assert set(drop[:, 0, 0, 0].tolist()) <= {0, 100, 200}
+    np.testing.assert_array_equal(resample_frame_rate(clip, 0.5, "drop")[:, 0, 0, 0], [0, 200])
+    assert resampled_frame_count(61, 0.5) == 31
+
+
+def test_effect_streams_are_independent_of_other_switches(clip):
+    wb = VisualEffects(white_balance=True)
+    both = dataclasses.replace(
+        wb, defocus_blur=True, defocus_radius_min_px=0.0, defocus_radius_max_px=0.4
+    )  # radius < 0.5 px: identity blur
+    a = apply_image_effects(clip, wb, np.random.default_rng(7))
+    b = apply_image_effects(clip, both, np.random.default_rng(7))
+    np.testing.assert_array_equal(a, b)
+    streams = effect_streams(np.random.default_rng(7))
+    assert list(streams) == list(EFFECT_NAMES)
+
+
+def test_shake_offsets_amplitude_and_smoothness():
+    effects = VisualEffects(camera_shake=True, shake_rotation_deg=0.5, shake_translation=0.01)
+    offsets = shake_offsets(np.random.default_rng(0), np.arange(0, 400, 0.5), effects)
+    assert offsets.shape == (800, 6)
+    np.testing.assert_allclose(offsets[:, 3:].std(0), 0.01, rtol=0.35)
+    np.testing.assert_allclose(offsets[:, :3].std(0), np.radians(0.5), rtol=0.35)
+    # Smooth: offsets half a frame apart are strongly correlated.
+    for c in range(6):
+        assert np.corrcoef(offsets[:-1, c], offsets[1:, c])[0, 1] > 0.7
+
+
+def test_image_effects_reject_non_uint8():
+    with pytest.raises(ValueError, match="uint8"):
+        apply_image_effects(np.zeros((2, 4, 4, 3)), VisualEffects(), np.random.default_rng(0))
