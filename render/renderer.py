@@ -33,7 +33,23 @@ from .lights import LightSpec
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-import pyrender
+
+def _load_triton_before_mesa() -> None:
+    """Import triton (if installed) before Mesa's llvmpipe loads its own LLVM.
+
+    Both bundle LLVM; importing triton *after* an EGL context exists segfaults the
+    process (seen with torch 2.15 + Mesa EGL: any later ``torch._dynamo`` import,
+    e.g. from a double backward, crashes). Loading triton first is safe.
+    """
+    try:
+        import triton  # noqa: F401
+    except ImportError:
+        pass
+
+
+_load_triton_before_mesa()
+
+import pyrender  # noqa: E402
 
 __all__ = ["ClothRenderer"]
 

@@ -25,7 +25,7 @@ class StepForce:
 
     damping_vertex: torch.Tensor | None = None
     """Per-vertex damping blocks [N·s/m], shape (B, V, 3, 3)."""
-    damping_blocks: ElementBlocks | None = None
+    damping_blocks: tuple[ElementBlocks, ...] = ()
     """Coupled damping as element blocks [N·s/m] (e.g. Rayleigh damping)."""
     v_ref: torch.Tensor | None = None
     """Velocity the damping pulls towards [m/s], shape (B, V, 3); zero if ``None``."""
@@ -37,8 +37,8 @@ class StepForce:
         out = torch.zeros_like(vec)
         if self.damping_vertex is not None:
             out = out + (self.damping_vertex @ vec[..., None])[..., 0]
-        if self.damping_blocks is not None:
-            out = out + self.damping_blocks.matvec(vec.reshape(-1, 3)).view_as(vec)
+        for blocks in self.damping_blocks:
+            out = out + blocks.matvec(vec.reshape(-1, 3)).view_as(vec)
         return out
 
     def damping_diagonal(self, batch: int, verts: int, like: torch.Tensor) -> torch.Tensor:
@@ -46,8 +46,8 @@ class StepForce:
         out = like.new_zeros(batch, verts, 3, 3)
         if self.damping_vertex is not None:
             out = out + self.damping_vertex
-        if self.damping_blocks is not None:
-            out = out + self.damping_blocks.diagonal_blocks(batch * verts).view(batch, verts, 3, 3)
+        for blocks in self.damping_blocks:
+            out = out + blocks.diagonal_blocks(batch * verts).view(batch, verts, 3, 3)
         return out
 
     def relative(self, vel: torch.Tensor) -> torch.Tensor:

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import torch
-
-from ..energies.base import ElementBlocks
 from .base import Force, StepForce
 
 __all__ = ["StrainRateDamping"]
@@ -32,17 +29,7 @@ class StrainRateDamping(Force):
 
         kinds = self.elastic_types or (EnergyMembraneWang, EnergyBendingDihedral, EnergyMassSpring)
         parts = [e.hessian_blocks(model, state.pos) for e in energies if isinstance(e, kinds)]
-        parts = [p for p in parts if p is not None]
-        if not parts:
-            return StepForce()
-        width = max(p.flat_indices.shape[1] for p in parts)
-        # Pad element blocks to one width so a single ElementBlocks holds them all.
-        idx, blk = [], []
-        for p in parts:
-            n, k = p.flat_indices.shape
-            pad = width - k
-            idx.append(torch.cat([p.flat_indices, p.flat_indices[:, :1].expand(n, pad)], 1))
-            b = p.blocks.new_zeros(n, 3 * width, 3 * width)
-            b[:, : 3 * k, : 3 * k] = p.blocks
-            blk.append(b)
-        return StepForce(damping_blocks=ElementBlocks(torch.cat(idx), self.beta * torch.cat(blk)))
+        scaled = tuple(
+            dataclasses.replace(p, blocks=self.beta * p.blocks) for p in parts if p is not None
+        )
+        return StepForce(damping_blocks=scaled)

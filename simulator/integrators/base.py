@@ -86,10 +86,15 @@ class IncrementalPotential:
         for f in forces:
             if f.damping_vertex is not None:
                 diag = diag + inv_h * f.damping_vertex
-            if f.damping_blocks is not None:
-                loose.append(
-                    dataclasses.replace(f.damping_blocks, blocks=inv_h * f.damping_blocks.blocks)
-                )
+            for b in f.damping_blocks:
+                scaled = dataclasses.replace(b, blocks=inv_h * b.blocks)
+                if sparse is not None and b.topology is not None:
+                    n = b.topology.shape[0]
+                    sparse.add_elements(
+                        b.topology, scaled.blocks.view(batch, n, *b.blocks.shape[1:])
+                    )
+                else:
+                    loose.append(scaled)
         if sparse is not None:
             sparse.add_vertex_blocks(diag)
             full_diag = sparse.diagonal()

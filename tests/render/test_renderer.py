@@ -289,3 +289,26 @@ def test_import_is_light_and_the_renderer_needs_no_environment_variable():
         check=False,
     )
     assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.render
+def test_torch_compiler_import_after_rendering_does_not_crash():
+    """Mesa's llvmpipe and triton both bundle LLVM; the renderer loads triton first."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "from render.camera import CameraSpec\n"
+        "from render.renderer import ClothRenderer\n"
+        "from simulator.mesh import TriMesh\n"
+        "grid = TriMesh.grid(4, size_u=0.5)\n"
+        "pos = np.stack([grid.uv[:, 0].numpy() - 0.25, np.zeros(16), 1 - grid.uv[:, 1].numpy()],"
+        " -1)[None].astype(np.float32)\n"
+        "r = ClothRenderer(CameraSpec.wind())\n"
+        "r.render_clip(pos, grid.tri_indices.numpy(), grid.uv.numpy(),"
+        " np.full((8, 8, 3), 200, np.uint8), None, rng=np.random.default_rng(0))\n"
+        "import torch._dynamo\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=300)
+    assert done.returncode == 0, done.stderr.decode()[-2000:]
