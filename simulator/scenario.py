@@ -197,9 +197,8 @@ class ScenarioWind:
         else:
             wind = WindField(mean)
         pos = mesh.vert_pos[None].repeat(batch, 1, 1)
-        pos = pos + _out_of_plane_noise(
-            seeds, mesh.vert_count, self.flatness_noise, (0.0, 1.0, 0.0)
-        )
+        noise = _out_of_plane_noise(seeds, mesh.vert_count, self.flatness_noise, (0.0, 1.0, 0.0))
+        pos = pos + noise.to(pos)
         pos[:, pins] = mesh.vert_pos[pins]
         state = SimState(pos, torch.zeros_like(pos), torch.zeros(batch, dtype=dtype, device=device))
         driver = WindDriver(pos[:, pins].clone(), wind, self.settle_time, self.ramp_time)
