@@ -20,7 +20,6 @@ import numpy as np
 import torch
 
 from .cloth import build_cloth_model
-from .effects import PhysicsEffects
 from .forces import AirDamping
 from .integrators import IntegratorBackwardEuler, solve_static
 from .material import ClothMaterial, WangMaterial
@@ -88,8 +87,7 @@ def bend_test(
     nu, nv = 41, 9
     mesh = _placed(nu, nv, 0.1, 0.02, (0.0, -0.01, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
     clamp = torch.cat([torch.arange(nv) * nu, torch.arange(nv) * nu + 1])
-    effects = PhysicsEffects()
-    model = build_cloth_model(mesh, material, clamp, wind_drag=False, effects=effects)
+    model = build_cloth_model(mesh, material, clamp, wind_drag=False)
     model = dataclasses.replace(model, forces=(*model.forces, AirDamping(coefficient=0.5)))
     batch = material.batch_size
     rest = mesh.vert_pos[None].repeat(batch, 1, 1)
