@@ -160,12 +160,9 @@ class VisualEffects:
     @staticmethod
     def from_dict(values: Mapping | None) -> VisualEffects:
         """Build from a (config) mapping; unknown keys raise, naming them and the allowed keys."""
-        values = dict(values or {})
-        allowed = {f.name for f in dataclasses.fields(VisualEffects)}
-        unknown = sorted(set(values) - allowed)
-        if unknown:
-            raise ValueError(f"visual effects: unknown {unknown}; allowed: {sorted(allowed)}")
-        return VisualEffects(**values)
+        from simulator.effects import switches_from_dict  # lazy: keeps torch out of render
+
+        return switches_from_dict(VisualEffects, values, "visual effects")
 
     def enabled(self) -> dict[str, bool]:
         """The switch values by name."""

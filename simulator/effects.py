@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 
-__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects"]
+__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "switches_from_dict"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,12 +61,20 @@ class PhysicsEffects:
     @staticmethod
     def from_dict(values: dict | None) -> PhysicsEffects:
         """Build from a (config) mapping; unknown keys raise, naming them and the allowed keys."""
-        values = dict(values or {})
-        allowed = {f.name for f in dataclasses.fields(PhysicsEffects)}
-        unknown = sorted(set(values) - allowed)
-        if unknown:
-            raise ValueError(f"effects: unknown {unknown}; allowed: {sorted(allowed)}")
-        return PhysicsEffects(**values)
+        return switches_from_dict(PhysicsEffects, values, "effects")
+
+
+def switches_from_dict(cls, values, label: str):
+    """Instantiate the switch dataclass ``cls`` from a mapping, rejecting unknown keys.
+
+    The error names the unknown keys and the allowed ones, prefixed by ``label``.
+    """
+    values = dict(values or {})
+    allowed = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise ValueError(f"{label}: unknown {unknown}; allowed: {sorted(allowed)}")
+    return cls(**values)
 
 
 PHYSICS_EFFECT_NAMES: tuple[str, ...] = tuple(
