@@ -132,7 +132,7 @@ def simulate(
         cg_iters += stats.cg_iters
         _check_finite(state, settings.max_speed, step, time)
         if step == settle_steps and scenario.static_settle:
-            state, _ = solve_static(model, state, control, settings=_SETTLE_POLISH)
+            state = _static_polish(model, state, control)
         if step >= settle_steps and (step - settle_steps) % substeps == 0:
             frames.append(state.pos.float().cpu())
         if bar is not None:
@@ -168,6 +168,15 @@ def simulate(
         wind_levels=[int(w) for w in wind_levels],
         meta=meta,
     )
+
+
+def _static_polish(model, state, control):
+    """Finish settling with a float64 static solve (float32 cannot reach its tolerance)."""
+    f64 = torch.float64
+    rest, _ = solve_static(
+        model.to(dtype=f64), state.to(dtype=f64), control.to(dtype=f64), settings=_SETTLE_POLISH
+    )
+    return rest.to(dtype=state.pos.dtype)
 
 
 def _check_finite(state, max_speed: float, step: int, time: float) -> None:

@@ -1,0 +1,107 @@
+"""Lightning DataModule over one or more generated datasets (clip or frame mode)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import lightning as L
+import torch
+from torch.utils.data import ConcatDataset, DataLoader, Dataset
+
+from .augment import ClipAugment
+from .clip_dataset import ClothClipDataset, ClothFrameDataset
+
+__all__ = ["ClothVideoDataModule"]
+
+MODES = ("clip", "frame")
+
+
+class ClothVideoDataModule(L.LightningDataModule):
+    """Train/val/test loaders of generated cloth datasets.
+
+    Args:
+        data_dirs: One dataset directory or several (concatenated, e.g. wind + arm).
+        mode: ``clip`` (samples ``video`` (T, 3, H, W)) or ``frame`` (``image`` (3, H, W)).
+        batch_size: Samples per batch.
+        num_workers: Data-loader worker processes.
+        augment: Apply :class:`ClipAugment` to training samples (``None`` = off).
+        verify: Check shard checksums when the datasets are opened.
+    """
+
+    def __init__(
+        self,
+        data_dirs: str | Path | Sequence[str | Path],
+        *,
+        mode: str = "clip",
+        batch_size: int = 16,
+        num_workers: int = 0,
+        augment: ClipAugment | None = None,
+        verify: bool = True,
+    ):
+        super().__init__()
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+            raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+        if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
+            raise ValueError(f"num_workers must be an integer >= 0, got {num_workers!r}")
+        dirs = [data_dirs] if isinstance(data_dirs, str | Path) else list(data_dirs)
+        if not dirs:
+            raise ValueError("data_dirs must name at least one dataset directory")
+        for path in dirs:
+            if not Path(path).is_dir():
+                raise FileNotFoundError(f"data directory {path} does not exist")
+        self.data_dirs = [Path(p) for p in dirs]
+        self.mode, self.batch_size, self.num_workers = mode, batch_size, num_workers
+        self.augment, self.verify = augment, verify
+        self.datasets: dict[str, Dataset] = {}
+
+    def _build(self, split: str) -> Dataset:
+        cls = ClothClipDataset if self.mode == "clip" else ClothFrameDataset
+        transform = self.augment if split == "train" else None
+        parts = [
+            cls(path, split, transform=transform, verify=self.verify) for path in self.data_dirs
+        ]
+        return parts[0] if len(parts) == 1 else ConcatDataset(parts)
+
+    def setup(self, stage: str | None = None) -> None:
+        """Open the splits that ``stage`` needs (all for ``None``)."""
+        wanted = {
+            "fit": ("train", "val"),
+            "validate": ("val",),
+            "test": ("test",),
+            "predict": ("test",),
+        }.get(stage or "", ("train", "val", "test"))
+        for split in wanted:
+            if split not in self.datasets:
+                self.datasets[split] = self._build(split)
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        if split not in self.datasets:
+            self.datasets[split] = self._build(split)
+        return DataLoader(
+            self.datasets[split],
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            pin_memory=torch.cuda.is_available(),
+            persistent_workers=self.num_workers > 0,
+            drop_last=False,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        """Shuffled training batches."""
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        """Validation batches in manifest order."""
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        """Test batches in manifest order."""
+        return self._loader("test", shuffle=False)
+
+    def predict_dataloader(self) -> DataLoader:
+        """Same as the test loader."""
+        return self._loader("test", shuffle=False)

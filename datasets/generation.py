@@ -1,0 +1,313 @@
+"""Dataset generation: simulate each work unit, render its clips, write shards, resume.
+
+Data flow per unit: :class:`~datasets.plan.WorkUnit` -> one batched rollout
+(:func:`simulator.rollout.simulate`; cached as a mesh sequence keyed by the physics hash,
+so datasets that differ only in rendering reuse it) -> :class:`render.ClothRenderer` clips
+-> one tar shard per split -> the unit's index file. :func:`generate_dataset` runs the
+pending units in parallel with joblib and merges the manifest once every unit exists.
+Clusters split the units between jobs with ``worker_index`` / ``worker_count`` (a Hydra
+multirun over ``worker.index`` with the submitit launcher, see the README).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from render.backgrounds import make_background
+from render.capsules import sequence_capsules
+from render.textures import make_texture
+from simulator.material import ClothMaterial
+from simulator.rollout import simulate
+from simulator.sequence import MeshSequence
+
+from .manifest import Manifest, clip_record, read_json, write_json
+from .plan import WorkUnit, plan_units
+from .shards import ShardError, frames_sha256, verify_shard, write_shard
+from .spec import SPLITS, DatasetSpec
+
+__all__ = ["generate_dataset", "render_unit", "run_unit", "simulate_unit"]
+
+log = logging.getLogger(__name__)
+
+_TEXTURE_STREAM, _BACKGROUND_STREAM, _CLIP_STREAM = 1, 2, 3
+_RENDERER: dict = {}
+"""One renderer per process (an EGL context does not survive fork), keyed by its settings."""
+
+
+def _renderer(spec: DatasetSpec):
+    from render.renderer import ClothRenderer
+
+    key = (spec.camera, spec.lights, spec.visual, spec.supersample)
+    if _RENDERER.get("key") != key:
+        old = _RENDERER.pop("renderer", None)
+        if old is not None:
+            old.close()
+        _RENDERER["renderer"] = ClothRenderer(
+            spec.camera, spec.lights, spec.visual, supersample=spec.supersample
+        )
+        _RENDERER["key"] = key
+    return _RENDERER["renderer"]
+
+
+def simulate_unit(spec: DatasetSpec, unit: WorkUnit, cache_dir: Path | None) -> MeshSequence:
+    """The unit's mesh sequence: from the cache when present, else simulated (and cached)."""
+    path = None
+    if cache_dir is not None:
+        path = Path(cache_dir) / spec.physics_key() / f"{unit.name}.npz"
+        if path.is_file():
+            try:
+                seq = MeshSequence.load(path)
+                if seq.pos.shape[:2] == (len(unit.sims), spec.frames_per_sim):
+                    return seq
+            except (OSError, ValueError, KeyError) as err:
+                log.warning("ignoring unreadable mesh cache %s (%s)", path, err)
+    classes = [s.class_id for s in unit.sims]
+    seq = simulate(
+        spec.scenario,
+        ClothMaterial.from_classes(classes),
+        seeds=[s.seed for s in unit.sims],
+        wind_levels=[s.wind_level for s in unit.sims],
+        fps=spec.preset.fps,
+        record_time=spec.record_time,
+        effects=spec.physics,
+        settings=spec.sim,
+        labels=classes,
+    )
+    if path is not None:
+        seq.save(path)
+    return seq
+
+
+def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[str, list]:
+    """Render every clip of the unit: ``{split: [(key, record, frames), ...]}``."""
+    renderer = _renderer(spec)
+    capsules = sequence_capsules(seq)
+    preset = spec.preset
+    out: dict[str, list] = {split: [] for split in SPLITS}
+    for b, sim in enumerate(unit.sims):
+        texture = make_texture(
+            spec.texture_mode,
+            np.random.default_rng([sim.seed, _TEXTURE_STREAM]),
+            spec.texture_size,
+        )
+        background = make_background(
+            np.random.default_rng([sim.seed, _BACKGROUND_STREAM]),
+            spec.camera.width,
+            spec.camera.height,
+        )
+        for k in range(preset.clips_per_sim):
+            start = spec.lead_in_frames + k * preset.frames_per_clip
+            stop = start + preset.frames_per_clip
+            frames = renderer.render_clip(
+                seq.pos[b, start:stop],
+                seq.tri_indices,
+                seq.uv,
+                texture,
+                background,
+                capsules=None if capsules is None else capsules[b, start:stop],
+                rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
+            )
+            shard = f"{sim.split}-{unit.name}.tar"
+            record = clip_record(spec, sim, k, shard, frames.shape, frames_sha256(frames))
+            out[sim.split].append((record["key"], record, frames))
+    return out
+
+
+def run_unit(
+    spec: DatasetSpec, unit: WorkUnit, out_dir: Path, cache_dir: Path | None, threads: int
+) -> dict:
+    """Simulate, render and write one unit; returns its index (also written to disk)."""
+    torch.set_num_threads(threads)
+    start = time.perf_counter()
+    seq = simulate_unit(spec, unit, cache_dir)
+    sim_seconds = time.perf_counter() - start
+    rendered = render_unit(spec, unit, seq)
+    shards, clips = [], []
+    for split in SPLITS:
+        samples = rendered[split]
+        if not samples:
+            continue
+        name = samples[0][1]["shard"]
+        info = write_shard(Path(out_dir) / "shards" / name, samples)
+        shards.append({"name": name, "split": split, "unit": unit.index, **info})
+        clips.extend(record for _, record, _ in samples)
+    index = {"spec_key": spec.key(), "unit": unit.index, "shards": shards, "clips": clips}
+    write_json(_unit_path(out_dir, unit), index)
+    seconds = time.perf_counter() - start
+    return {
+        "index": index,
+        "sim_seconds": sim_seconds,
+        "render_seconds": seconds - sim_seconds,
+        "frames": sum(c["frame_count"] for c in clips),
+    }
+
+
+def _unit_path(out_dir: Path, unit: WorkUnit) -> Path:
+    return Path(out_dir) / "units" / f"{unit.name}.json"
+
+
+def _finished_index(out_dir: Path, unit: WorkUnit, spec_key: str) -> dict | None:
+    """The unit's index if the unit is complete and intact, else ``None``."""
+    path = _unit_path(out_dir, unit)
+    if not path.is_file():
+        return None
+    try:
+        index = read_json(path)
+        if index.get("spec_key") != spec_key:
+            return None
+        for shard in index["shards"]:
+            verify_shard(Path(out_dir) / "shards" / shard["name"], shard["sha256"], shard["bytes"])
+    except (ShardError, KeyError) as err:
+        log.warning("%s will be regenerated: %s", unit.name, err)
+        return None
+    return index
+
+
+def _prepare_dir(spec: DatasetSpec, out_dir: Path, overwrite: bool) -> None:
+    spec_path = out_dir / "spec.json"
+    if spec_path.is_file():
+        existing = read_json(spec_path)
+        if existing.get("key") != spec.key():
+            if not overwrite:
+                raise ValueError(
+                    f"out_dir {out_dir} holds a dataset of a different config "
+                    f"(key {existing.get('key')} != {spec.key()}); choose another out_dir or "
+                    "set overwrite=true"
+                )
+            for name in ("shards", "units"):
+                shutil.rmtree(out_dir / name, ignore_errors=True)
+            for name in ("manifest.json", "manifest.csv"):
+                (out_dir / name).unlink(missing_ok=True)
+    for sub in ("shards", "units"):
+        (out_dir / sub).mkdir(parents=True, exist_ok=True)
+        for stale in (out_dir / sub).glob(".*.tmp"):
+            stale.unlink(missing_ok=True)  # left by a killed writer; never counted
+    write_json(spec_path, {"key": spec.key(), "spec": spec.to_json()})
+
+
+def _merge(spec: DatasetSpec, out_dir: Path, indices: list[dict]) -> Manifest:
+    indices = sorted(indices, key=lambda index: index["unit"])
+    manifest = Manifest(
+        root=out_dir,
+        spec=spec.to_json(),
+        spec_key=spec.key(),
+        shards=tuple(s for index in indices for s in index["shards"]),
+        clips=tuple(c for index in indices for c in index["clips"]),
+    )
+    manifest.save()
+    return manifest
+
+
+def generate_dataset(
+    spec: DatasetSpec,
+    out_dir: str | Path,
+    *,
+    n_jobs: int = 1,
+    threads_per_job: int = 1,
+    worker_index: int = 0,
+    worker_count: int = 1,
+    mesh_cache: str | Path | None = None,
+    overwrite: bool = False,
+    max_units: int | None = None,
+    progress: bool = True,
+) -> Manifest | None:
+    """Generate (or finish) the dataset of ``spec`` in ``out_dir``.
+
+    Args:
+        spec: What to generate.
+        out_dir: Dataset directory (created; an unfinished one of the same spec is resumed).
+        n_jobs: Parallel worker processes (joblib); 1 runs in this process.
+        threads_per_job: Torch threads per worker (part of what fixes the bytes: keep it when
+            resuming).
+        worker_index: This job takes the units with ``index % worker_count == worker_index``
+            (cluster sharding).
+        worker_count: Number of jobs sharing the units.
+        mesh_cache: Directory of cached mesh sequences (``None``: ``out_dir/meshes``).
+        overwrite: Replace a dataset of a different spec in ``out_dir`` instead of failing.
+        max_units: Stop after this many new units (a deliberate partial run).
+        progress: Show a progress bar with ETA.
+
+    Returns:
+        The manifest once every unit of the dataset exists, else ``None``.
+    """
+    for name, value, low in (
+        ("n_jobs", n_jobs, 1),
+        ("threads_per_job", threads_per_job, 1),
+        ("worker_count", worker_count, 1),
+        ("worker_index", worker_index, 0),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    if worker_index >= worker_count:
+        raise ValueError(f"worker_index must be in [0, {worker_count - 1}], got {worker_index}")
+    out_dir = Path(out_dir)
+    _prepare_dir(spec, out_dir, overwrite)
+    cache_dir = Path(mesh_cache) if mesh_cache is not None else out_dir / "meshes"
+    units = plan_units(spec)
+    key = spec.key()
+    done = {u.index: idx for u in units if (idx := _finished_index(out_dir, u, key)) is not None}
+    pending = [u for u in units if u.index not in done and u.index % worker_count == worker_index]
+    if max_units is not None:
+        pending = pending[:max_units]
+    log.info(
+        "%s: %d units (%d clips), %d finished, %d to run here with %d job(s)",
+        out_dir,
+        len(units),
+        spec.clip_count,
+        len(done),
+        len(pending),
+        n_jobs,
+    )
+    if pending:
+        _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads_per_job, done, progress)
+    if len(done) < len(units):
+        log.info("%d of %d units finished; run again to continue", len(done), len(units))
+        return None
+    manifest = _merge(spec, out_dir, list(done.values()))
+    log.info(
+        "wrote %s (%d clips, %d shards)",
+        Manifest.path(out_dir),
+        len(manifest.clips),
+        len(manifest.shards),
+    )
+    return manifest
+
+
+def _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads, done, progress) -> None:
+    from tqdm import tqdm
+
+    clips = sum(len(u.sims) for u in pending) * spec.preset.clips_per_sim
+    bar = tqdm(total=clips, desc=f"generate {spec.motion}", unit="clip", disable=not progress)
+    timing = {"sim_seconds": 0.0, "render_seconds": 0.0, "frames": 0}
+    try:
+        if n_jobs == 1:
+            results = (run_unit(spec, u, out_dir, cache_dir, threads) for u in pending)
+        else:
+            from joblib import Parallel, delayed
+
+            os.environ.setdefault("LP_NUM_THREADS", "1")  # llvmpipe: one raster thread per job
+            parallel = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
+            results = parallel(
+                delayed(run_unit)(spec, u, out_dir, cache_dir, threads) for u in pending
+            )
+        for result in results:
+            index = result["index"]
+            done[index["unit"]] = index
+            for name in timing:
+                timing[name] += result[name]
+            bar.update(len(index["clips"]))
+    finally:
+        bar.close()
+    log.info(
+        "worker time: simulate %.1f s, render+write %.1f s (%.0f frames/s)",
+        timing["sim_seconds"],
+        timing["render_seconds"],
+        timing["frames"] / max(timing["render_seconds"], 1e-9),
+    )

@@ -1,0 +1,168 @@
+"""The manifest: every clip with its labels and physical values, every shard with its checksum.
+
+Layout of a dataset directory::
+
+    spec.json            the DatasetSpec (JSON) and its key; written first
+    units/unit-0003.json one per finished work unit: its shards (sha256, bytes) and clips
+    shards/{split}-unit-0003.tar
+    manifest.json        all units merged: spec, shards, clips (written when all units exist)
+    manifest.csv         one row per clip, for people and pandas
+
+A unit counts as finished only when its index file exists and its shards match their
+recorded checksums, so a killed run is resumed by running the same command again.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+from pathlib import Path
+
+from simulator.material import BEND_MULTIPLIERS, class_summary
+from simulator.sequence import atomic_write_bytes
+
+from .plan import SimulationPlan
+from .shards import ShardError, verify_shard
+from .spec import DatasetSpec
+
+__all__ = ["MANIFEST_SCHEMA", "Manifest", "clip_record", "read_json", "write_json"]
+
+MANIFEST_SCHEMA = 1
+CSV_COLUMNS = (
+    "key", "split", "shard", "class_id", "stretch_index", "bend_index", "stretch_mult",
+    "bend_mult", "stretch_stiffness", "bend_stiffness", "density", "motion", "wind_level",
+    "wind_speed", "texture_mode", "resolution_level", "effects", "seed", "sim_id",
+    "clip_index", "start_frame", "frame_count", "fps", "height", "width", "sha256",
+)  # fmt: skip
+
+
+def write_json(path: str | Path, payload) -> None:
+    """Atomic, deterministic JSON."""
+    text = json.dumps(payload, sort_keys=True, indent=1, allow_nan=False)
+    atomic_write_bytes(path, (text + "\n").encode())
+
+
+def read_json(path: str | Path):
+    """Read JSON, naming the file when it is unreadable."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ShardError(f"cannot read {path}: {err}") from None
+
+
+def clip_record(
+    spec: DatasetSpec,
+    sim: SimulationPlan,
+    clip_index: int,
+    shard: str,
+    frames_shape: tuple[int, ...],
+    sha256: str,
+) -> dict:
+    """Manifest row of one clip (also stored as the clip's ``.json`` inside its shard)."""
+    summary = class_summary(sim.class_id)
+    stretch_index, bend_index = divmod(sim.class_id, len(BEND_MULTIPLIERS))
+    speeds = getattr(spec.scenario, "wind_speeds", None)
+    preset = spec.preset
+    return {
+        "key": f"{spec.motion}-{sim.sim_id}-k{clip_index:02d}",
+        "split": sim.split,
+        "shard": shard,
+        "class_id": sim.class_id,
+        "stretch_index": stretch_index,
+        "bend_index": bend_index,
+        "stretch_mult": summary["stretch_mult"],
+        "bend_mult": summary["bend_mult"],
+        "stretch_stiffness": summary["stretch_stiffness"],
+        "bend_stiffness": summary["bend_stiffness"],
+        "density": summary["density"],
+        "motion": spec.motion,
+        "wind_level": sim.wind_level if speeds else -1,
+        "wind_speed": float(speeds[sim.wind_level]) if speeds else 0.0,
+        "texture_mode": spec.texture_mode,
+        "resolution_level": spec.scenario.resolution_level,
+        "effects": ";".join(spec.enabled_effects()),
+        "seed": sim.seed,
+        "sim_id": sim.sim_id,
+        "clip_index": clip_index,
+        "start_frame": spec.lead_in_frames + clip_index * preset.frames_per_clip,
+        "frame_count": int(frames_shape[0]),
+        "fps": preset.fps,
+        "height": int(frames_shape[1]),
+        "width": int(frames_shape[2]),
+        "sha256": sha256,
+    }
+
+
+@dataclasses.dataclass(frozen=True)
+class Manifest:
+    """A finished dataset: spec, shards (with checksums) and clips."""
+
+    root: Path
+    spec: dict
+    spec_key: str
+    shards: tuple[dict, ...]
+    clips: tuple[dict, ...]
+
+    @staticmethod
+    def path(root: str | Path) -> Path:
+        """Where the manifest of the dataset at ``root`` lives."""
+        return Path(root) / "manifest.json"
+
+    @classmethod
+    def load(cls, root: str | Path) -> Manifest:
+        """Read ``root/manifest.json``; a clear error if the directory is not a dataset."""
+        root = Path(root)
+        if not root.is_dir():
+            raise FileNotFoundError(f"dataset directory {root} does not exist")
+        path = cls.path(root)
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"{path} not found: {root} is not a finished dataset (run datasets.generate, "
+                "which resumes an unfinished one)"
+            )
+        data = read_json(path)
+        if data.get("schema_version") != MANIFEST_SCHEMA:
+            raise ShardError(f"{path}: schema_version {data.get('schema_version')} unsupported")
+        return cls(
+            root=root,
+            spec=data["spec"],
+            spec_key=data["spec_key"],
+            shards=tuple(data["shards"]),
+            clips=tuple(data["clips"]),
+        )
+
+    def save(self) -> None:
+        """Write ``manifest.json`` and ``manifest.csv`` atomically."""
+        write_json(
+            self.path(self.root),
+            {
+                "schema_version": MANIFEST_SCHEMA,
+                "spec": self.spec,
+                "spec_key": self.spec_key,
+                "shards": list(self.shards),
+                "clips": list(self.clips),
+            },
+        )
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        for clip in self.clips:
+            writer.writerow({k: clip[k] for k in CSV_COLUMNS})
+        atomic_write_bytes(self.root / "manifest.csv", buffer.getvalue().encode())
+
+    def shard_path(self, name: str) -> Path:
+        """File of shard ``name``."""
+        return self.root / "shards" / name
+
+    def verify(self) -> None:
+        """Check every shard's size and checksum; :class:`ShardError` names the first bad one."""
+        for shard in self.shards:
+            verify_shard(self.shard_path(shard["name"]), shard["sha256"], shard["bytes"])
+
+    def clips_of(self, split: str | None) -> list[dict]:
+        """Clips of one split (``train``, ``val``, ``test``), or all for ``None``."""
+        if split is not None and split not in ("train", "val", "test"):
+            raise ValueError(f"split must be 'train', 'val', 'test' or None, got {split!r}")
+        return [c for c in self.clips if split is None or c["split"] == split]

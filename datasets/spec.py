@@ -1,0 +1,238 @@
+"""What a generated dataset is: one frozen, validated spec (thesis 7.6-7.7.1, Table 7.2).
+
+A :class:`DatasetSpec` fixes everything that decides the bytes of a dataset: the motion
+(scene), mesh resolution, texture mode, physical and visual effect switches, size,
+solver settings, image size and seed. Its JSON form goes into the manifest; its hashes
+decide whether an existing output directory or mesh cache belongs to the same dataset.
+
+Size. The thesis generates 2,592 ten-frame clips per (motion, remeshing, texture) setting
+and tests on 432 of them. Our ``full`` preset makes the same numbers with splits that hold
+out whole simulations: 12 simulations per class x 4 clips each = 48 clips per class; per
+class 9 simulations train, 1 validates, 2 test (2 x 4 x 54 = 432 test clips).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from typing import Any
+
+from render.camera import CameraSpec
+from render.effects import VisualEffects
+from render.lights import LightSpec
+from render.textures import TextureMode
+from simulator.effects import PhysicsEffects
+from simulator.material import CLASS_COUNT
+from simulator.rollout import SimSettings
+from simulator.scenario import ScenarioArmBend, ScenarioWind
+
+__all__ = ["MOTIONS", "PRESETS", "DatasetSpec", "SizePreset"]
+
+MOTIONS = {"wind": ScenarioWind, "arm": ScenarioArmBend}
+"""Motion name -> scene class."""
+
+SPLITS = ("train", "val", "test")
+
+
+@dataclasses.dataclass(frozen=True)
+class SizePreset:
+    """How many simulations and clips per class, and how clips are cut from a simulation."""
+
+    name: str
+    sims_per_class: int
+    clips_per_sim: int
+    val_sims_per_class: int
+    test_sims_per_class: int
+    frames_per_clip: int = 10
+    """Thesis: each sequence consists of 10 frames."""
+    fps: float = 15.0
+    """Recorded (and rendered) frames per second: 10 frames span 0.67 s, about one flap of
+    the cloth in W2 wind; real footage is resampled to this rate by the real-video loader."""
+
+    def __post_init__(self):
+        for name in ("sims_per_class", "clips_per_sim", "frames_per_clip"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"preset.{name} must be an integer >= 1, got {value!r}")
+        for name in ("val_sims_per_class", "test_sims_per_class"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"preset.{name} must be an integer >= 0, got {value!r}")
+        held_out = self.val_sims_per_class + self.test_sims_per_class
+        if held_out >= self.sims_per_class:
+            raise ValueError(
+                f"preset: val_sims_per_class + test_sims_per_class ({held_out}) must be < "
+                f"sims_per_class ({self.sims_per_class}) so every class has training simulations"
+            )
+        if not self.fps > 0:
+            raise ValueError(f"preset.fps must be > 0, got {self.fps}")
+
+    @property
+    def clips_per_class(self) -> int:
+        """Clips of each class over all splits."""
+        return self.sims_per_class * self.clips_per_sim
+
+
+PRESETS = {
+    "full": SizePreset(
+        "full", sims_per_class=12, clips_per_sim=4, val_sims_per_class=1, test_sims_per_class=2
+    ),
+    "small": SizePreset(
+        "small", sims_per_class=4, clips_per_sim=2, val_sims_per_class=1, test_sims_per_class=1
+    ),
+}
+"""``full`` = the thesis's 2,592 clips per setting; ``small`` = 432 clips for quick runs."""
+
+
+def _positive_int(name: str, value, low: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return value
+
+
+def _jsonable(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        out = {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        return out
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, str):
+        return str(value)  # StrEnum -> plain str
+    return value
+
+
+def _digest(payload: Any) -> str:
+    text = json.dumps(_jsonable(payload), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetSpec:
+    """Everything that determines a generated dataset's bytes."""
+
+    motion: str
+    """``wind`` or ``arm`` (thesis 7.4.3)."""
+    scenario: ScenarioWind | ScenarioArmBend
+    preset: SizePreset
+    texture_mode: str = "random"
+    """``grid``, ``color`` or ``random`` (Table 7.2's texture column)."""
+    classes: tuple[int, ...] = tuple(range(CLASS_COUNT))
+    seed: int = 0
+    lead_in: float = 0.0
+    """Recorded time dropped before the first clip [s] (the wind scene's ramp-in)."""
+    sim: SimSettings = dataclasses.field(default_factory=SimSettings)
+    physics: PhysicsEffects = dataclasses.field(default_factory=PhysicsEffects)
+    camera: CameraSpec = dataclasses.field(default_factory=CameraSpec.wind)
+    lights: LightSpec = dataclasses.field(default_factory=LightSpec.default)
+    visual: VisualEffects = dataclasses.field(default_factory=VisualEffects)
+    supersample: int = 1
+    texture_size: int = 256
+    sims_per_unit: int = 0
+    """Simulations batched into one work unit (one rollout, one set of shards); 0 = all
+    classes of one simulation index."""
+
+    def __post_init__(self):
+        if self.motion not in MOTIONS:
+            raise ValueError(f"motion must be one of {sorted(MOTIONS)}, got {self.motion!r}")
+        expected = MOTIONS[self.motion]
+        if not isinstance(self.scenario, expected):
+            raise ValueError(
+                f"scenario must be a {expected.__name__} for motion {self.motion!r}, "
+                f"got {type(self.scenario).__name__}"
+            )
+        try:
+            TextureMode(self.texture_mode)
+        except ValueError:
+            raise ValueError(
+                f"texture_mode must be one of {[m.value for m in TextureMode]}, "
+                f"got {self.texture_mode!r}"
+            ) from None
+        classes = tuple(int(c) for c in self.classes)
+        if not classes or len(set(classes)) != len(classes):
+            raise ValueError(f"classes must be a non-empty list without repeats, got {classes}")
+        bad = [c for c in classes if not 0 <= c < CLASS_COUNT]
+        if bad:
+            raise ValueError(f"classes must be in [0, {CLASS_COUNT - 1}], got {bad}")
+        object.__setattr__(self, "classes", classes)
+        _positive_int("seed", self.seed, low=0)
+        if not self.lead_in >= 0:
+            raise ValueError(f"lead_in must be >= 0 s, got {self.lead_in}")
+        _positive_int("supersample", self.supersample)
+        _positive_int("texture_size", self.texture_size, low=8)
+        _positive_int("sims_per_unit", self.sims_per_unit, low=0)
+        for name, cls in (
+            ("preset", SizePreset),
+            ("sim", SimSettings),
+            ("physics", PhysicsEffects),
+            ("camera", CameraSpec),
+            ("lights", LightSpec),
+            ("visual", VisualEffects),
+        ):
+            if not isinstance(getattr(self, name), cls):
+                raise ValueError(f"{name} must be a {cls.__name__}, got {getattr(self, name)!r}")
+
+    # ------------------------------------------------------------------ derived sizes
+
+    @property
+    def lead_in_frames(self) -> int:
+        """Recorded frames dropped before the first clip."""
+        return round(self.lead_in * self.preset.fps)
+
+    @property
+    def frames_per_sim(self) -> int:
+        """Frames recorded per simulation (lead-in + all clips, back to back)."""
+        return self.lead_in_frames + self.preset.clips_per_sim * self.preset.frames_per_clip
+
+    @property
+    def record_time(self) -> float:
+        """Recorded time per simulation after settling [s] (frame 0 is the rest state)."""
+        return (self.frames_per_sim - 1) / self.preset.fps
+
+    @property
+    def unit_size(self) -> int:
+        """Simulations per work unit."""
+        return self.sims_per_unit or len(self.classes)
+
+    @property
+    def clip_count(self) -> int:
+        """Clips in the whole dataset."""
+        return len(self.classes) * self.preset.clips_per_class
+
+    # ------------------------------------------------------------------ identity
+
+    def to_json(self) -> dict:
+        """Plain-JSON form (goes into the manifest)."""
+        return _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
+
+    def physics_key(self) -> str:
+        """Hash of what decides the simulated meshes (not the rendering)."""
+        spec = self.to_json()
+        keys = (
+            "motion",
+            "scenario",
+            "preset",
+            "classes",
+            "seed",
+            "lead_in",
+            "sim",
+            "physics",
+            "sims_per_unit",
+        )
+        return _digest({k: spec[k] for k in keys})
+
+    def key(self) -> str:
+        """Hash of the whole spec (decides the shards' bytes)."""
+        return _digest(self.to_json())
+
+    def enabled_effects(self) -> list[str]:
+        """Names of the effect switches that differ from their defaults, physical then visual."""
+        out = []
+        for group, obj in (("physics", self.physics), ("visual", self.visual)):
+            default = type(obj)()
+            for name, on in obj.enabled().items():
+                if on != getattr(default, name):
+                    out.append(f"{group}.{name}={'on' if on else 'off'}")
+        return out
