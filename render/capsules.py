@@ -72,8 +72,8 @@ def sequence_capsules(seq) -> np.ndarray | None:
     """The arm's capsules at each recorded frame of a mesh sequence.
 
     Frame k of :func:`simulator.rollout.simulate` is recorded at time
-    ``(round(settle_time / dt) + k * substeps) * dt``; the capsules are the scene driver's
-    at that time.
+    ``record_start_time + k * substeps * dt``; the capsules are the scene driver's at that
+    time.
 
     Args:
         seq: A :class:`simulator.sequence.MeshSequence`.
@@ -95,9 +95,11 @@ def sequence_capsules(seq) -> np.ndarray | None:
     _, state, driver = scenario.build(material, seeds=list(range(batch)))
     sim = seq.meta["sim"]
     dt, substeps = float(sim["dt"]), int(sim["substeps"])
-    settle_steps = round(float(seq.meta["settle_time"]) / dt)
+    start = seq.meta.get("record_start_time")
+    if start is None:  # sequences written before record_start_time existed
+        start = round(float(seq.meta["settle_time"]) / dt) * dt
     frames = []
     for k in range(seq.frame_count):
-        time = (settle_steps + k * substeps) * dt
+        time = float(start) + k * substeps * dt
         frames.append(driver.control(time, state.pos).capsules.to(torch.float32).numpy())
     return np.stack(frames, axis=1)
