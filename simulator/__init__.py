@@ -4,6 +4,7 @@ Shape legend used in every docstring:
 
 * ``B`` batch: one material x scenario instance (PSO particles / UKF sigma points later);
 * ``V`` vertices, ``F`` triangles, ``E`` interior bending edges, ``P`` pinned vertices;
+* ``T`` tetrahedra, ``R`` material regions (tissue);
 * ``K`` recorded frames; ``C`` capsule obstacles.
 
 Arrays are row-major ``(N, 3)``; positions in metres, SI units throughout. Only
@@ -31,6 +32,7 @@ from .rollout import SimSettings, simulate
 from .scenario import RESOLUTION_LEVELS, ScenarioArmBend, ScenarioWind
 from .sequence import MeshSequence
 from .solvers import NewtonSettings, StepStats
+from .tetmesh import TetMesh
 
 __all__ = [
     "BASIS_MATERIAL",
@@ -55,6 +57,7 @@ __all__ = [
     "SimState",
     "SimulationDiverged",
     "StepStats",
+    "TetMesh",
     "TriMesh",
     "WangMaterial",
     "build_cloth_model",

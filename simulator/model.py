@@ -15,9 +15,13 @@ import torch
 from .mesh import TriMesh
 from .solvers.block_sparse import BlockPattern
 from .solvers.coarse import grid_aggregates
+from .tetmesh import TetMesh, voxel_aggregates
 
 AGGREGATE_PATCH = 4
 """Vertices per side of a coarse aggregate (best measured in benchmarks/precond_bench.py)."""
+
+TET_AGGREGATE_PATCH = 3
+"""Vertices per side of a coarse aggregate on tet meshes (about 27 vertices each)."""
 
 __all__ = ["SimControl", "SimModel", "SimState"]
 
@@ -41,7 +45,8 @@ def _to(obj, device=None, dtype=None):
 class SimModel:
     """What does not change during a rollout."""
 
-    mesh: TriMesh
+    mesh: TriMesh | TetMesh
+    """Shared topology: a cloth :class:`TriMesh` or a tissue :class:`TetMesh`."""
     energies: tuple
     """Conservative terms (:class:`simulator.energies.base.Energy`)."""
     forces: tuple
@@ -56,8 +61,19 @@ class SimModel:
     """Coarse-level aggregate id per vertex for the two-level preconditioner, int64 (V,)."""
 
     def with_pattern(self) -> SimModel:
-        """Attach the block-sparse Hessian pattern of the mesh's triangles and hinges."""
+        """Attach the block-sparse Hessian pattern of the mesh's elements and the aggregates.
+
+        Cloth: triangles and bending hinges, aggregates from the 2D material coordinates.
+        Tissue: tets, aggregates from 3D voxel cells of the rest positions.
+        """
         mesh = self.mesh
+        if isinstance(mesh, TetMesh):
+            device = mesh.tet_indices.device
+            pattern = BlockPattern.from_topologies(mesh.vert_count, [mesh.tet_indices.cpu()])
+            aggregates = None
+            if mesh.vert_count >= TET_AGGREGATE_PATCH**3 * 4:
+                aggregates = voxel_aggregates(mesh.vert_pos.cpu(), TET_AGGREGATE_PATCH).to(device)
+            return dataclasses.replace(self, pattern=pattern.to(device), aggregates=aggregates)
         pattern = BlockPattern.from_topologies(
             mesh.vert_count, [mesh.tri_indices.cpu(), mesh.edge_indices.cpu()]
         )

@@ -4,9 +4,19 @@ from .base import ElementBlocks, Energy
 from .bending import EnergyBendingDihedral
 from .contact import EnergyContactCapsule
 from .gravity import EnergyGravity
+from .loads import EnergyNodalForce, surface_traction_forces
 from .membrane import EnergyMembraneWang
 from .self_collision import EnergySelfCollision
 from .springs import EnergyMassSpring
+from .tet import (
+    EnergyTetCorotated,
+    EnergyTetLinear,
+    EnergyTetMooneyRivlin,
+    EnergyTetNeoHookean,
+    EnergyTetStVK,
+    lame_from_young_poisson,
+    region_values,
+)
 
 __all__ = [
     "ElementBlocks",
@@ -16,5 +26,14 @@ __all__ = [
     "EnergyGravity",
     "EnergyMassSpring",
     "EnergyMembraneWang",
+    "EnergyNodalForce",
     "EnergySelfCollision",
+    "EnergyTetCorotated",
+    "EnergyTetLinear",
+    "EnergyTetMooneyRivlin",
+    "EnergyTetNeoHookean",
+    "EnergyTetStVK",
+    "lame_from_young_poisson",
+    "region_values",
+    "surface_traction_forces",
 ]
