@@ -267,6 +267,9 @@ def generate_dataset(
     )
     if pending:
         _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads_per_job, done, progress)
+    for unit in units:  # other workers (cluster jobs) may have finished units meanwhile
+        if unit.index not in done and (index := _finished_index(out_dir, unit, key)) is not None:
+            done[unit.index] = index
     if len(done) < len(units):
         log.info("%d of %d units finished; run again to continue", len(done), len(units))
         return None

@@ -144,3 +144,16 @@ def test_rendering_only_variant_reuses_the_mesh_cache(tmp_path, tiny_dataset):
     a = ClothClipDataset(tmp_path / "a", None).read(0)[1]
     b = ClothClipDataset(tmp_path / "b", None).read(0)[1]
     assert not np.array_equal(a, b)
+
+
+def test_cluster_workers_split_the_units_and_the_last_writes_the_manifest(tmp_path, tiny_dataset):
+    root = tmp_path / "sharded"
+    first = generate_dataset(tiny_spec(), root, worker_index=0, worker_count=2, progress=False)
+    assert first is None, "worker 0 alone cannot finish the dataset"
+    assert sorted(p.name for p in (root / "units").glob("*.json")) == [
+        "unit-0000.json",
+        "unit-0002.json",
+    ]
+    second = generate_dataset(tiny_spec(), root, worker_index=1, worker_count=2, progress=False)
+    assert second is not None
+    assert _tree_bytes(root) == _tree_bytes(tiny_dataset)
