@@ -1,6 +1,6 @@
 """Look at a generated dataset: a labelled contact sheet (PNG) and a class-grid video (mp4).
 
-``python -m datasets.preview data/wind-L2-random-small-s0 [more dirs] --out outputs/preview``
+``python -m datasets.preview data/wind-L1-random-small-s0 [more dirs] --out outputs/preview``
 
 * ``<name>_sheet.png``: one row per class (stretch x bend multipliers in the label), a few
   clips per class from different simulations, a few frames of each clip;

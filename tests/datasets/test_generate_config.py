@@ -21,7 +21,7 @@ def _compose(*overrides):
 def test_default_and_override_configs_build_specs():
     spec = spec_from_config(_compose())
     assert spec.motion == "wind" and spec.preset.name == "small"
-    assert spec.scenario.resolution_level == 2 and spec.sim.dtype == "float32"
+    assert spec.scenario.resolution_level == 1 and spec.sim.dtype == "float32"
     arm = spec_from_config(
         _compose(
             "motion=arm",
