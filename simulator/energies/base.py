@@ -109,15 +109,22 @@ class Energy:
 def psd_project_sym2(mat: torch.Tensor) -> torch.Tensor:
     """Clamp the eigenvalues of symmetric 2x2 matrices (..., 2, 2) at zero (closed form)."""
     a, b, d = mat[..., 0, 0], mat[..., 0, 1], mat[..., 1, 1]
+    info = torch.finfo(mat.dtype)
     mean = 0.5 * (a + d)
-    rad = torch.sqrt(0.25 * (a - d) ** 2 + b * b + 1e-300)
+    rad = torch.sqrt(0.25 * (a - d) ** 2 + b * b)
     lam1 = mean + rad
     lam2 = mean - rad
     # Eigenvector of lam1 is (b, lam1 - a) or (lam1 - d, b); pick the better-conditioned one.
     v1x = torch.where((a - d) >= 0, lam1 - d, b)
     v1y = torch.where((a - d) >= 0, b, lam1 - a)
-    norm = torch.sqrt(v1x * v1x + v1y * v1y).clamp_min(1e-300)
-    cx, sy = v1x / norm, v1y / norm
+    norm = torch.sqrt(v1x * v1x + v1y * v1y)
+    # Isotropic (or zero) matrices: any frame is an eigenframe. Without this branch float32
+    # gives 0/0 here for an unstressed flat cloth (a constant like 1e-300 rounds to 0).
+    scale = a.abs() + d.abs() + b.abs()
+    degenerate = norm <= 4 * info.eps * scale + info.tiny
+    safe = torch.where(degenerate, torch.ones_like(norm), norm)
+    cx = torch.where(degenerate, torch.ones_like(norm), v1x / safe)
+    sy = torch.where(degenerate, torch.zeros_like(norm), v1y / safe)
     p1 = lam1.clamp_min(0.0)
     p2 = lam2.clamp_min(0.0)
     out = torch.empty_like(mat)
