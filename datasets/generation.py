@@ -124,9 +124,13 @@ def run_unit(
     spec: DatasetSpec, unit: WorkUnit, out_dir: Path, cache_dir: Path | None, threads: int
 ) -> dict:
     """Simulate, render and write one unit; returns its index (also written to disk)."""
-    torch.set_num_threads(threads)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)  # part of what fixes the bytes
     start = time.perf_counter()
-    seq = simulate_unit(spec, unit, cache_dir)
+    try:
+        seq = simulate_unit(spec, unit, cache_dir)
+    finally:
+        torch.set_num_threads(previous)
     sim_seconds = time.perf_counter() - start
     rendered = render_unit(spec, unit, seq)
     shards, clips = [], []
