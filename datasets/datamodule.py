@@ -11,6 +11,7 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
 from .augment import ClipAugment
 from .clip_dataset import ClothClipDataset, ClothFrameDataset
+from .spec import check_int
 
 __all__ = ["ClothVideoDataModule"]
 
@@ -42,10 +43,8 @@ class ClothVideoDataModule(L.LightningDataModule):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-            raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
-        if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
-            raise ValueError(f"num_workers must be an integer >= 0, got {num_workers!r}")
+        check_int("batch_size", batch_size)
+        check_int("num_workers", num_workers, low=0)
         dirs = [data_dirs] if isinstance(data_dirs, str | Path) else list(data_dirs)
         if not dirs:
             raise ValueError("data_dirs must name at least one dataset directory")

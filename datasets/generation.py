@@ -30,7 +30,7 @@ from simulator.sequence import MeshSequence
 from .manifest import Manifest, clip_record, read_json, write_json
 from .plan import WorkUnit, plan_units
 from .shards import ShardError, frames_sha256, verify_shard, write_shard
-from .spec import SPLITS, DatasetSpec
+from .spec import SPLITS, DatasetSpec, check_int
 
 __all__ = ["generate_dataset", "render_unit", "run_unit", "simulate_unit"]
 
@@ -247,8 +247,7 @@ def generate_dataset(
         ("worker_count", worker_count, 1),
         ("worker_index", worker_index, 0),
     ):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        check_int(name, value, low)
     if worker_index >= worker_count:
         raise ValueError(f"worker_index must be in [0, {worker_count - 1}], got {worker_index}")
     out_dir = Path(out_dir)

@@ -27,6 +27,7 @@ import torch
 from torch.utils.data import Dataset
 
 from .clip_dataset import clip_tensor
+from .spec import check_int
 
 __all__ = ["REQUIRED_COLUMNS", "RealVideoDataset", "read_labels"]
 
@@ -118,8 +119,7 @@ class RealVideoDataset(Dataset):
         if not root.is_dir():
             raise FileNotFoundError(f"real-video folder {root} does not exist")
         for name, value in (("clip_len", clip_len), ("clip_stride", clip_stride), ("size", size)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            check_int(name, value)
         if not target_fps > 0:
             raise ValueError(f"target_fps must be > 0, got {target_fps}")
         self.root, self.clip_len, self.clip_stride = root, clip_len, clip_stride

@@ -27,12 +27,19 @@ from simulator.material import CLASS_COUNT
 from simulator.rollout import SimSettings
 from simulator.scenario import ScenarioArmBend, ScenarioWind
 
-__all__ = ["MOTIONS", "PRESETS", "DatasetSpec", "SizePreset"]
+__all__ = ["MOTIONS", "PRESETS", "DatasetSpec", "SizePreset", "check_int"]
 
 MOTIONS = {"wind": ScenarioWind, "arm": ScenarioArmBend}
 """Motion name -> scene class."""
 
 SPLITS = ("train", "val", "test")
+
+
+def check_int(name: str, value, low: int = 1) -> int:
+    """``value`` if it is an integer >= ``low``; else a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,13 +59,9 @@ class SizePreset:
 
     def __post_init__(self):
         for name in ("sims_per_class", "clips_per_sim", "frames_per_clip"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"preset.{name} must be an integer >= 1, got {value!r}")
+            check_int(f"preset.{name}", getattr(self, name))
         for name in ("val_sims_per_class", "test_sims_per_class"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"preset.{name} must be an integer >= 0, got {value!r}")
+            check_int(f"preset.{name}", getattr(self, name), low=0)
         held_out = self.val_sims_per_class + self.test_sims_per_class
         if held_out >= self.sims_per_class:
             raise ValueError(
@@ -83,12 +86,6 @@ PRESETS = {
     ),
 }
 """``full`` = the thesis's 2,592 clips per setting; ``small`` = 432 clips for quick runs."""
-
-
-def _positive_int(name: str, value, low: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-    return value
 
 
 def _jsonable(value: Any) -> Any:
@@ -157,12 +154,12 @@ class DatasetSpec:
         if bad:
             raise ValueError(f"classes must be in [0, {CLASS_COUNT - 1}], got {bad}")
         object.__setattr__(self, "classes", classes)
-        _positive_int("seed", self.seed, low=0)
+        check_int("seed", self.seed, low=0)
         if not self.lead_in >= 0:
             raise ValueError(f"lead_in must be >= 0 s, got {self.lead_in}")
-        _positive_int("supersample", self.supersample)
-        _positive_int("texture_size", self.texture_size, low=8)
-        _positive_int("sims_per_unit", self.sims_per_unit, low=0)
+        check_int("supersample", self.supersample)
+        check_int("texture_size", self.texture_size, low=8)
+        check_int("sims_per_unit", self.sims_per_unit, low=0)
         for name, cls in (
             ("preset", SizePreset),
             ("sim", SimSettings),
