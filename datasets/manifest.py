@@ -156,9 +156,14 @@ class Manifest:
         """File of shard ``name``."""
         return self.root / "shards" / name
 
-    def verify(self) -> None:
-        """Check every shard's size and checksum; :class:`ShardError` names the first bad one."""
+    def verify(self, split: str | None = None) -> None:
+        """Check the size and checksum of the shards of ``split`` (all for ``None``).
+
+        Raises :class:`ShardError` naming the first bad shard.
+        """
         for shard in self.shards:
+            if split is not None and shard["split"] != split:
+                continue
             verify_shard(self.shard_path(shard["name"]), shard["sha256"], shard["bytes"])
 
     def clips_of(self, split: str | None) -> list[dict]:

@@ -157,3 +157,13 @@ def test_cluster_workers_split_the_units_and_the_last_writes_the_manifest(tmp_pa
     second = generate_dataset(tiny_spec(), root, worker_index=1, worker_count=2, progress=False)
     assert second is not None
     assert _tree_bytes(root) == _tree_bytes(tiny_dataset)
+
+
+def test_each_split_verifies_its_own_shards(tmp_path, tiny_dataset):
+    root = tmp_path / "split-check"
+    shutil.copytree(tiny_dataset, root)
+    train = next((root / "shards").glob("train-*.tar"))
+    train.write_bytes(train.read_bytes()[:-10])
+    assert len(ClothClipDataset(root, "test")) == 2
+    with pytest.raises(ShardError, match=train.name):
+        ClothClipDataset(root, "train")
