@@ -24,10 +24,13 @@ class ClothVideoDataModule(L.LightningDataModule):
     Args:
         data_dirs: One dataset directory or several (concatenated, e.g. wind + arm).
         mode: ``clip`` (samples ``video`` (T, 3, H, W)) or ``frame`` (``image`` (3, H, W)).
+        eval_mode: Mode of the val/test/predict splits (``None`` = ``mode``); a per-frame
+            baseline trains on frames (``frame``) but is scored on whole clips (``clip``).
         batch_size: Samples per batch.
         num_workers: Data-loader worker processes.
         augment: Apply :class:`ClipAugment` to training samples (``None`` = off).
         verify: Check shard checksums when the datasets are opened.
+        cache: Keep decoded clips in memory (see :class:`ClothClipDataset`).
     """
 
     def __init__(
@@ -35,14 +38,18 @@ class ClothVideoDataModule(L.LightningDataModule):
         data_dirs: str | Path | Sequence[str | Path],
         *,
         mode: str = "clip",
+        eval_mode: str | None = None,
         batch_size: int = 16,
         num_workers: int = 0,
         augment: ClipAugment | None = None,
         verify: bool = True,
+        cache: bool = False,
     ):
         super().__init__()
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        eval_mode = mode if eval_mode is None else eval_mode
+        for name, value in (("mode", mode), ("eval_mode", eval_mode)):
+            if value not in MODES:
+                raise ValueError(f"{name} must be one of {MODES}, got {value!r}")
         check_int("batch_size", batch_size)
         check_int("num_workers", num_workers, low=0)
         dirs = [data_dirs] if isinstance(data_dirs, str | Path) else list(data_dirs)
@@ -52,15 +59,18 @@ class ClothVideoDataModule(L.LightningDataModule):
             if not Path(path).is_dir():
                 raise FileNotFoundError(f"data directory {path} does not exist")
         self.data_dirs = [Path(p) for p in dirs]
+        self.eval_mode = eval_mode
         self.mode, self.batch_size, self.num_workers = mode, batch_size, num_workers
-        self.augment, self.verify = augment, verify
+        self.augment, self.verify, self.cache = augment, verify, cache
         self.datasets: dict[str, Dataset] = {}
 
     def _build(self, split: str) -> Dataset:
-        cls = ClothClipDataset if self.mode == "clip" else ClothFrameDataset
+        mode = self.mode if split == "train" else self.eval_mode
+        cls = ClothClipDataset if mode == "clip" else ClothFrameDataset
         transform = self.augment if split == "train" else None
         parts = [
-            cls(path, split, transform=transform, verify=self.verify) for path in self.data_dirs
+            cls(path, split, transform=transform, verify=self.verify, cache=self.cache)
+            for path in self.data_dirs
         ]
         return parts[0] if len(parts) == 1 else ConcatDataset(parts)
 

@@ -1,0 +1,153 @@
+"""Clip classifiers over a per-frame encoder: the thesis's CNN+LSTM and its two baselines.
+
+All take clips ``(B, T, 3, H, W)`` in [0, 1] and return class logits ``(B, num_classes)``.
+
+* :class:`CNNLSTMNet` (thesis 7.5.1, LRCN of Donahue et al. 2015): fc6 features of every
+  frame feed an LSTM; a linear layer reads each step's hidden state and, as in LRCN, the
+  clip's logits are the mean over the steps (``readout="mean"``) or the last step's.
+  With ``freeze_encoder`` and ``encoder_checkpoint`` it is baseline 2 (thesis 7.7.2.1):
+  baseline 1's CNN, frozen, with only the LSTM and classifier trained.
+* :class:`FramePoolNet` (baseline 1): the encoder plus a linear classifier applied to every
+  frame; a clip's logits are the mean of its frames' logits. It also accepts single frames
+  ``(B, 3, H, W)``, which is how it is trained ("on all frames").
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from simulator.material import CLASS_COUNT
+
+from .frame_encoder import FrameEncoder
+
+__all__ = ["CNNLSTMNet", "FramePoolNet", "load_encoder_state"]
+
+log = logging.getLogger(__name__)
+
+READOUTS = ("mean", "last")
+
+
+def _check_clips(video: torch.Tensor) -> None:
+    if video.ndim != 5 or video.shape[2] != 3:
+        raise ValueError(f"video must have shape (B, T, 3, H, W), got {tuple(video.shape)}")
+
+
+def _encode_frames(encoder: FrameEncoder, video: torch.Tensor) -> torch.Tensor:
+    """(B, T, 3, H, W) -> (B, T, feature_dim), every frame through the encoder at once."""
+    batch, steps = video.shape[:2]
+    return encoder(video.flatten(0, 1)).view(batch, steps, -1)
+
+
+def load_encoder_state(encoder: FrameEncoder, checkpoint: str | Path) -> None:
+    """Copy the encoder weights of a trained clip model's checkpoint into ``encoder``.
+
+    Accepts a Lightning checkpoint (``state_dict`` with ``net.encoder.*`` keys) or a plain
+    state dict of a net (``encoder.*``) or of an encoder.
+    """
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"encoder_checkpoint {path} does not exist (baseline 2 needs baseline 1's "
+            "checkpoint: train the frame model first)"
+        )
+    # Our own checkpoints; they hold plain hyper-parameter dicts besides the tensors.
+    raw = torch.load(path, map_location="cpu", weights_only=False)
+    state = raw.get("state_dict", raw)
+    for prefix in ("net.encoder.", "encoder.", ""):
+        picked = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
+        if picked and set(encoder.state_dict()) <= set(picked):
+            encoder.load_state_dict({k: picked[k] for k in encoder.state_dict()})
+            log.info("encoder weights from %s", path)
+            return
+    raise ValueError(f"encoder_checkpoint {path} holds no weights matching this encoder")
+
+
+class CNNLSTMNet(nn.Module):
+    """Frame encoder -> LSTM -> per-step linear classifier, averaged (LRCN).
+
+    Args:
+        encoder: Per-frame encoder giving fc6 features.
+        hidden_size: LSTM hidden units.
+        num_layers: Stacked LSTM layers.
+        num_classes: Output classes (54 material classes).
+        readout: ``mean`` of the per-step logits (LRCN) or the ``last`` step's.
+        freeze_encoder: Keep the encoder fixed (baseline 2); it also stays in eval mode.
+        encoder_checkpoint: Load encoder weights from this checkpoint first (baseline 2).
+    """
+
+    def __init__(
+        self,
+        encoder: FrameEncoder,
+        *,
+        hidden_size: int = 256,
+        num_layers: int = 1,
+        num_classes: int = CLASS_COUNT,
+        readout: str = "mean",
+        freeze_encoder: bool = False,
+        encoder_checkpoint: str | None = None,
+    ):
+        super().__init__()
+        if readout not in READOUTS:
+            raise ValueError(f"readout must be one of {READOUTS}, got {readout!r}")
+        for name, value in (("hidden_size", hidden_size), ("num_layers", num_layers),
+                            ("num_classes", num_classes)):  # fmt: skip
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        self.encoder = encoder
+        if encoder_checkpoint:
+            load_encoder_state(encoder, encoder_checkpoint)
+        self.freeze_encoder = freeze_encoder
+        if freeze_encoder:
+            encoder.requires_grad_(False)
+        self.lstm = nn.LSTM(encoder.feature_dim, hidden_size, num_layers, batch_first=True)
+        self.classifier = nn.Linear(hidden_size, num_classes)
+        self.readout = readout
+
+    def train(self, mode: bool = True) -> CNNLSTMNet:
+        """Like :meth:`nn.Module.train`, but a frozen encoder stays in eval mode."""
+        super().train(mode)
+        if self.freeze_encoder:
+            self.encoder.eval()
+        return self
+
+    def forward(self, video: torch.Tensor) -> torch.Tensor:
+        """Clips (B, T, 3, H, W) -> logits (B, num_classes)."""
+        _check_clips(video)
+        if self.freeze_encoder:
+            if self.encoder.training:  # trainers may set modes module by module
+                self.encoder.eval()
+            with torch.no_grad():
+                features = _encode_frames(self.encoder, video)
+        else:
+            features = _encode_frames(self.encoder, video)
+        hidden, _ = self.lstm(features)
+        if self.readout == "last":
+            return self.classifier(hidden[:, -1])
+        return self.classifier(hidden).mean(dim=1)
+
+
+class FramePoolNet(nn.Module):
+    """Per-frame classifier; a clip's logits are the mean of its frames' logits (baseline 1).
+
+    Args:
+        encoder: Per-frame encoder giving fc6 features.
+        num_classes: Output classes.
+    """
+
+    def __init__(self, encoder: FrameEncoder, *, num_classes: int = CLASS_COUNT):
+        super().__init__()
+        if not isinstance(num_classes, int) or num_classes < 1:
+            raise ValueError(f"num_classes must be an integer >= 1, got {num_classes!r}")
+        self.encoder = encoder
+        self.classifier = nn.Linear(encoder.feature_dim, num_classes)
+
+    def forward(self, video: torch.Tensor) -> torch.Tensor:
+        """Clips (B, T, 3, H, W) or frames (B, 3, H, W) -> logits (B, num_classes)."""
+        if video.ndim == 4:
+            return self.classifier(self.encoder(video))
+        _check_clips(video)
+        return self.classifier(_encode_frames(self.encoder, video)).mean(dim=1)

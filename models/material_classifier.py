@@ -1,0 +1,167 @@
+"""LightningModule that trains any clip classifier net on the 54 material classes.
+
+It receives its ``net`` (and optimizer/scheduler factories) from the config, as in the
+lightning-hydra template; ``net_config`` (the net's plain ``_target_`` config) is stored in
+the checkpoint so that :func:`load_classifier` can rebuild the net without the training
+config. Batches are the datasets' dicts: clips (``video`` (B, T, 3, H, W)) or, for the
+per-frame baseline, frames (``image`` (B, 3, H, W)).
+
+Logged: ``train/loss``, ``train/acc``, ``val/loss``, ``val/acc``, ``val/acc_best``,
+``val/top5``, ``val/stretch_acc``, ``val/bend_acc``, ``val/grid_mae`` (and ``test/*``).
+Validation metrics are computed on the whole epoch's predictions, gathered over DDP ranks.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from pathlib import Path
+
+import lightning as L
+import torch
+from hydra.utils import instantiate
+from torch import nn
+
+from .metrics import classification_metrics
+
+__all__ = ["MaterialClassifierModule", "batch_input", "load_classifier"]
+
+
+def batch_input(batch: dict) -> torch.Tensor:
+    """The pixels of a batch: ``video`` (clip mode) or ``image`` (frame mode)."""
+    for key in ("video", "image"):
+        if key in batch:
+            return batch[key]
+    raise KeyError(f"batch has neither 'video' nor 'image' (keys: {sorted(batch)})")
+
+
+class MaterialClassifierModule(L.LightningModule):
+    """Cross-entropy training and epoch-level metrics of a clip classifier.
+
+    Args:
+        net: Maps (B, T, 3, H, W) (or (B, 3, H, W) for frame models) to logits (B, 54).
+        optimizer: Factory ``params -> Optimizer`` (``_partial_`` config); default AdamW 1e-3.
+        scheduler: Factory ``optimizer -> LRScheduler`` stepped per epoch, or ``None``.
+        label_smoothing: Cross-entropy label smoothing.
+        net_config: The net's ``_target_`` config (plain dict), kept for :func:`load_classifier`.
+        method: Short method name for reports (``cnn_lstm``, ``base1``, ``base2``, ...).
+    """
+
+    def __init__(
+        self,
+        net: nn.Module,
+        optimizer: Callable | None = None,
+        scheduler: Callable | None = None,
+        *,
+        label_smoothing: float = 0.0,
+        net_config: dict | None = None,
+        method: str = "",
+    ):
+        super().__init__()
+        if not 0 <= label_smoothing < 1:
+            raise ValueError(f"label_smoothing must be in [0, 1), got {label_smoothing!r}")
+        self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
+        self.net = net
+        self.optimizer_factory = optimizer
+        self.scheduler_factory = scheduler
+        self.loss = nn.CrossEntropyLoss(label_smoothing=label_smoothing)
+        self._outputs: dict[str, list[tuple[torch.Tensor, torch.Tensor]]] = {"val": [], "test": []}
+        self.best_val_acc = 0.0
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        """Logits (B, 54) of clips or frames."""
+        return self.net(pixels)
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        """Cross-entropy on one batch; logs loss and accuracy."""
+        logits = self(batch_input(batch))
+        labels = batch["label"]
+        loss = self.loss(logits, labels)
+        size = labels.shape[0]
+        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=size)
+        acc = (logits.argmax(1) == labels).float().mean()
+        self.log("train/acc", acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=size)
+        return loss
+
+    def _eval_step(self, split: str, batch: dict) -> None:
+        logits = self(batch_input(batch))
+        self._outputs[split].append((logits.detach(), batch["label"]))
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        """Collect the logits; metrics come at the epoch's end."""
+        self._eval_step("val", batch)
+
+    def test_step(self, batch: dict, batch_idx: int) -> None:
+        """Collect the logits; metrics come at the epoch's end."""
+        self._eval_step("test", batch)
+
+    def _epoch_metrics(self, split: str) -> None:
+        outputs, self._outputs[split] = self._outputs[split], []
+        if not outputs:
+            return
+        logits = torch.cat([o[0] for o in outputs])
+        labels = torch.cat([o[1] for o in outputs])
+        if self.trainer is not None and self.trainer.world_size > 1:
+            logits = self.all_gather(logits).flatten(0, 1)
+            labels = self.all_gather(labels).flatten(0, 1)
+        metrics = classification_metrics(logits.float(), labels)
+        metrics["loss"] = float(self.loss(logits.float(), labels.long()))
+        if split == "val" and not self.trainer.sanity_checking:
+            self.best_val_acc = max(self.best_val_acc, metrics["acc"])
+            metrics["acc_best"] = self.best_val_acc
+        for name, value in metrics.items():
+            self.log(f"{split}/{name}", value, prog_bar=name == "acc", sync_dist=False)
+
+    def on_validation_epoch_end(self) -> None:
+        """Log the validation metrics of the whole epoch."""
+        self._epoch_metrics("val")
+
+    def on_test_epoch_end(self) -> None:
+        """Log the test metrics of the whole split."""
+        self._epoch_metrics("test")
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """Keep the best validation accuracy across resumes."""
+        checkpoint["best_val_acc"] = self.best_val_acc
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """Restore the best validation accuracy of a resumed run."""
+        self.best_val_acc = float(checkpoint.get("best_val_acc", 0.0))
+
+    def configure_optimizers(self):
+        """The configured optimizer (AdamW 1e-3 by default) and optional per-epoch scheduler."""
+        params = [p for p in self.parameters() if p.requires_grad]
+        factory = self.optimizer_factory or (lambda ps: torch.optim.AdamW(ps, lr=1e-3))
+        optimizer = factory(params)
+        if self.scheduler_factory is None:
+            return optimizer
+        scheduler = self.scheduler_factory(optimizer)
+        schedule = {"scheduler": scheduler, "interval": "epoch"}
+        return {"optimizer": optimizer, "lr_scheduler": schedule}
+
+
+def load_classifier(
+    checkpoint: str | Path, map_location: str | torch.device = "cpu"
+) -> MaterialClassifierModule:
+    """Rebuild a trained module from its checkpoint alone (net from the stored ``net_config``)."""
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    # Our own checkpoints: hyper-parameters are plain dicts next to the tensors.
+    raw = torch.load(path, map_location=map_location, weights_only=False)
+    hparams = raw.get("hyper_parameters", {})
+    net_config = copy.deepcopy(hparams.get("net_config"))
+    if not net_config:
+        raise ValueError(f"checkpoint {path} has no net_config; was it written by train.py?")
+    if "encoder_checkpoint" in net_config:
+        net_config["encoder_checkpoint"] = None  # the encoder weights are in this state dict
+    net = instantiate(net_config)
+    module = MaterialClassifierModule(
+        net,
+        label_smoothing=float(hparams.get("label_smoothing", 0.0)),
+        net_config=hparams.get("net_config"),
+        method=str(hparams.get("method", "")),
+    )
+    module.load_state_dict(raw["state_dict"])
+    module.best_val_acc = float(raw.get("best_val_acc", 0.0))
+    return module.eval()

@@ -1,0 +1,60 @@
+"""Classification metrics over the 6 x 9 stretch x bend class grid (thesis Table 7.2 and more).
+
+Pure torch functions of logits ``(N, 54)`` and labels ``(N,)``; the Lightning module and the
+evaluation entry both use them, so training logs and reports agree.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
+
+__all__ = ["classification_metrics", "confusion_matrix", "grid_position"]
+
+BEND_COUNT = len(BEND_MULTIPLIERS)
+
+
+def grid_position(classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Class ids -> (stretch index, bend index) in the 6 x 9 grid."""
+    return torch.div(classes, BEND_COUNT, rounding_mode="floor"), torch.remainder(
+        classes, BEND_COUNT
+    )
+
+
+def confusion_matrix(labels: torch.Tensor, predicted: torch.Tensor) -> torch.Tensor:
+    """(54, 54) counts; row = true class, column = predicted class."""
+    flat = labels.long() * CLASS_COUNT + predicted.long()
+    return torch.bincount(flat, minlength=CLASS_COUNT**2).view(CLASS_COUNT, CLASS_COUNT)
+
+
+def classification_metrics(logits: torch.Tensor, labels: torch.Tensor) -> dict[str, float]:
+    """Top-1/top-5 accuracy, stretch- and bend-factor accuracy and grid errors.
+
+    ``grid_mae`` is the mean L1 distance between the true and predicted cells of the
+    6 x 9 grid (|d stretch index| + |d bend index|); ``stretch_mae`` and ``bend_mae`` are its
+    two parts. Accuracies are fractions in [0, 1].
+    """
+    if logits.ndim != 2 or logits.shape[1] != CLASS_COUNT or labels.shape != logits.shape[:1]:
+        raise ValueError(
+            f"logits must be (N, {CLASS_COUNT}) and labels (N,), got {tuple(logits.shape)} "
+            f"and {tuple(labels.shape)}"
+        )
+    if labels.numel() == 0:
+        raise ValueError("metrics need at least one sample")
+    labels = labels.long()
+    predicted = logits.argmax(dim=1)
+    top5 = logits.topk(min(5, CLASS_COUNT), dim=1).indices
+    true_s, true_b = grid_position(labels)
+    pred_s, pred_b = grid_position(predicted)
+    stretch_err = (true_s - pred_s).abs().double()
+    bend_err = (true_b - pred_b).abs().double()
+    return {
+        "acc": (predicted == labels).double().mean().item(),
+        "top5": (top5 == labels[:, None]).any(dim=1).double().mean().item(),
+        "stretch_acc": (stretch_err == 0).double().mean().item(),
+        "bend_acc": (bend_err == 0).double().mean().item(),
+        "grid_mae": (stretch_err + bend_err).mean().item(),
+        "stretch_mae": stretch_err.mean().item(),
+        "bend_mae": bend_err.mean().item(),
+    }

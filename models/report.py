@@ -1,0 +1,67 @@
+"""Atomic writers for evaluation artefacts: JSON (no NaN allowed), Markdown and PNG figures."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from simulator.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
+from simulator.sequence import atomic_write_bytes
+
+__all__ = ["confusion_png", "markdown_table", "write_json", "write_text"]
+
+
+def write_json(path: str | Path, payload) -> None:
+    """Write ``payload`` as indented JSON; NaN or infinity raises instead of being written."""
+    text = json.dumps(payload, indent=2, sort_keys=True, allow_nan=False)
+    atomic_write_bytes(path, (text + "\n").encode())
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) atomically."""
+    atomic_write_bytes(path, text.encode())
+
+
+def markdown_table(header: list[str], rows: list[list]) -> str:
+    """A GitHub Markdown table; floats keep what the caller formatted."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def confusion_png(path: str | Path, matrix: np.ndarray, title: str) -> None:
+    """Write the 54 x 54 confusion matrix as a PNG.
+
+    Rows are true classes, columns predicted, row-normalised; the 6 stretch blocks of 9 bend
+    classes are outlined.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    counts = np.asarray(matrix, dtype=np.float64)
+    rows = counts.sum(axis=1, keepdims=True)
+    share = np.divide(counts, rows, out=np.zeros_like(counts), where=rows > 0)
+    bends = len(BEND_MULTIPLIERS)
+    fig, ax = plt.subplots(figsize=(7.5, 6.5), dpi=110)
+    image = ax.imshow(share, cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest")
+    for edge in range(bends, counts.shape[0], bends):
+        ax.axhline(edge - 0.5, color="white", linewidth=0.6)
+        ax.axvline(edge - 0.5, color="white", linewidth=0.6)
+    centres = [s * bends + (bends - 1) / 2 for s in range(len(STRETCH_MULTIPLIERS))]
+    names = [f"p{m:g}" for m in STRETCH_MULTIPLIERS]
+    ax.set_xticks(centres, names)
+    ax.set_yticks(centres, names)
+    ax.set_xlabel("predicted class (stretch block; bend 0.5..20 inside)")
+    ax.set_ylabel("true class")
+    ax.set_title(title, fontsize=10)
+    fig.colorbar(image, ax=ax, fraction=0.046, pad=0.04, label="fraction of the true class")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    plt.close(fig)
+    atomic_write_bytes(path, buffer.getvalue())

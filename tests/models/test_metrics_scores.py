@@ -1,0 +1,70 @@
+"""Grid metrics, material scores and bootstrap correlations against hand-computed values."""
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from models.correlation import correlate
+from models.metrics import classification_metrics, confusion_matrix
+from models.scores import material_scores
+
+
+def _logits(predicted, runner_up=None):
+    logits = torch.zeros(len(predicted), 54)
+    logits[torch.arange(len(predicted)), torch.tensor(predicted)] = 5.0
+    if runner_up is not None:
+        logits[torch.arange(len(predicted)), torch.tensor(runner_up)] = 4.0
+    return logits
+
+
+def test_classification_metrics_by_hand():
+    # true (s, b): 0 -> (0,0), 10 -> (1,1), 53 -> (5,8), 20 -> (2,2)
+    labels = torch.tensor([0, 10, 53, 20])
+    # predicted: exact; same stretch other bend (1,3); other stretch same bend (4,8); (0,0)
+    logits = _logits([0, 12, 44, 0], runner_up=[1, 10, 53, 30])
+    m = classification_metrics(logits, labels)
+    assert m["acc"] == pytest.approx(0.25)
+    assert m["top5"] == pytest.approx(0.75)  # the last's runner-up (30) is wrong
+    assert m["stretch_acc"] == pytest.approx(0.5)
+    assert m["bend_acc"] == pytest.approx(0.5)
+    assert m["stretch_mae"] == pytest.approx((0 + 0 + 1 + 2) / 4)
+    assert m["bend_mae"] == pytest.approx((0 + 2 + 0 + 2) / 4)
+    assert m["grid_mae"] == pytest.approx(m["stretch_mae"] + m["bend_mae"])
+    matrix = confusion_matrix(labels, logits.argmax(1))
+    assert matrix.sum() == 4 and matrix[20, 0] == 1 and matrix[10, 12] == 1
+    with pytest.raises(ValueError, match="logits must be"):
+        classification_metrics(torch.zeros(3, 10), torch.zeros(3))
+
+
+def test_material_scores_are_positions_in_the_stiffness_ordering():
+    probs = torch.nn.functional.one_hot(torch.tensor([0, 13, 53]), 54).double()
+    scores = material_scores(probs)
+    assert scores["material_score"].tolist() == [0, 13, 53]
+    assert scores["stretch_score"].tolist() == [0, 1, 5]
+    assert scores["bend_score"].tolist() == [0, 4, 8]
+    uniform = material_scores(torch.full((1, 54), 1 / 54, dtype=torch.float64))
+    assert uniform["material_score"].item() == pytest.approx(26.5)
+    assert uniform["bend_score"].item() == pytest.approx(4.0)
+
+
+def test_correlation_matches_scipy_and_bootstrap_brackets_it():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=30)
+    y = 0.7 * x + rng.normal(scale=0.6, size=30)
+    c = correlate(x, y, rounds=500, seed=1)
+    assert c.pearson == pytest.approx(stats.pearsonr(x, y)[0])
+    assert c.spearman == pytest.approx(stats.spearmanr(x, y)[0])
+    assert c.pearson_ci[0] < c.pearson < c.pearson_ci[1]
+    assert c.spearman_ci[0] < c.spearman < c.spearman_ci[1]
+    assert correlate(x, y, rounds=500, seed=1) == c  # seeded
+    perfect = correlate(x, 3 * x + 1, rounds=100)
+    assert perfect.pearson == pytest.approx(1.0) and perfect.pearson_ci[0] == pytest.approx(1.0)
+
+
+def test_undefined_correlations_are_none_not_nan():
+    assert correlate([1.0, 2.0], [3.0, 4.0]).pearson is None
+    constant = correlate([1.0, 1.0, 1.0, 1.0], [1.0, 2.0, 3.0, 4.0])
+    assert constant.pearson is None and constant.spearman_ci is None
+    with pytest.raises(ValueError, match="finite"):
+        correlate([1.0, np.nan, 2.0], [1.0, 2.0, 3.0])

@@ -1,0 +1,96 @@
+"""Shapes, gradients, freezing and weight loading of the encoders and clip nets."""
+
+import logging
+
+import pytest
+import torch
+
+from models.components.frame_encoder import ENCODERS, FrameEncoder
+from models.components.video_nets import CNNLSTMNet, FramePoolNet, load_encoder_state
+
+
+def _clips(batch=2, steps=3, size=64, seed=0):
+    return torch.rand(batch, steps, 3, size, size, generator=torch.Generator().manual_seed(seed))
+
+
+@pytest.mark.parametrize("name", ENCODERS)
+def test_every_encoder_in_every_net_gives_logits_and_gradients(name):
+    torch.manual_seed(0)
+    encoder = FrameEncoder(name, feature_dim=16, width=0.25)
+    assert encoder(torch.rand(5, 3, 64, 64)).shape == (5, 16)
+    for net in (CNNLSTMNet(encoder, hidden_size=8), FramePoolNet(encoder, num_classes=54)):
+        video = _clips().requires_grad_(True)
+        logits = net(video)
+        assert logits.shape == (2, 54) and torch.isfinite(logits).all()
+        logits.sum().backward()
+        assert video.grad is not None and video.grad.abs().sum() > 0
+
+
+def test_frame_pool_net_mean_of_frame_logits_and_single_frames():
+    torch.manual_seed(0)
+    net = FramePoolNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0)).eval()
+    video = _clips(steps=4)
+    per_frame = torch.stack([net(video[:, t]) for t in range(4)], dim=1)
+    torch.testing.assert_close(net(video), per_frame.mean(1), rtol=1e-5, atol=1e-5)
+
+
+def test_lstm_readouts_and_order_sensitivity():
+    torch.manual_seed(0)
+    video = _clips(steps=5)
+    for readout in ("mean", "last"):
+        net = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0),
+                         hidden_size=8, readout=readout).eval()  # fmt: skip
+        reversed_video = video.flip(1)
+        assert not torch.allclose(net(video), net(reversed_video))  # it sees the order
+
+
+def test_bad_arguments_name_the_field():
+    with pytest.raises(ValueError, match="encoder name must be one of"):
+        FrameEncoder("vgg99")
+    with pytest.raises(ValueError, match="feature_dim"):
+        FrameEncoder(feature_dim=0)
+    with pytest.raises(ValueError, match="readout"):
+        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), readout="max")
+    with pytest.raises(ValueError, match="hidden_size"):
+        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), hidden_size=0)
+    with pytest.raises(ValueError, match=r"video must have shape \(B, T, 3, H, W\)"):
+        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25))(torch.rand(2, 3, 32, 32))
+
+
+def test_frozen_encoder_from_checkpoint_gets_no_gradient_and_stays_in_eval(tmp_path):
+    torch.manual_seed(0)
+    base1 = FramePoolNet(FrameEncoder(feature_dim=8, width=0.25))
+    path = tmp_path / "base1.ckpt"
+    torch.save({"state_dict": {f"net.{k}": v for k, v in base1.state_dict().items()}}, path)
+    torch.manual_seed(1)
+    base2 = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25), hidden_size=8,
+                       freeze_encoder=True, encoder_checkpoint=str(path))  # fmt: skip
+    for key, value in base1.encoder.state_dict().items():
+        torch.testing.assert_close(base2.encoder.state_dict()[key], value, msg=key)
+    base2.train()
+    assert not base2.encoder.training and base2.lstm.training
+    base2(_clips(size=32)).sum().backward()
+    assert all(p.grad is None for p in base2.encoder.parameters())
+    assert base2.lstm.weight_ih_l0.grad is not None
+
+
+def test_missing_or_foreign_encoder_checkpoint_is_a_clear_error(tmp_path):
+    encoder = FrameEncoder(feature_dim=8, width=0.25)
+    with pytest.raises(FileNotFoundError, match="baseline 1"):
+        load_encoder_state(encoder, tmp_path / "nope.ckpt")
+    torch.save({"state_dict": {"net.other.weight": torch.zeros(1)}}, tmp_path / "x.ckpt")
+    with pytest.raises(ValueError, match="no weights matching"):
+        load_encoder_state(encoder, tmp_path / "x.ckpt")
+
+
+def test_pretrained_weights_only_from_local_files(tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    with caplog.at_level(logging.WARNING):
+        FrameEncoder("resnet18", feature_dim=8, pretrained=True)
+    assert "not found" in caplog.text and "nothing is downloaded" in caplog.text
+    source = FrameEncoder("resnet18", feature_dim=8)
+    weights = tmp_path / "resnet18.pth"
+    torch.save(source.trunk.state_dict(), weights)
+    loaded = FrameEncoder("resnet18", feature_dim=8, pretrained=str(weights))
+    assert loaded.pretrained_from == str(weights)
+    torch.testing.assert_close(loaded.trunk.conv1.weight, source.trunk.conv1.weight)

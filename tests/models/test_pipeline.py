@@ -1,0 +1,148 @@
+"""train.py and models.evaluate end to end on a tiny generated dataset and a tiny real folder."""
+
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.errors import MissingConfigException
+from hydra.utils import instantiate
+
+import train as train_entry
+from models.evaluate import run as evaluate_run
+from models.material_classifier import load_classifier
+
+CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
+EXPERIMENTS = sorted(p.stem for p in Path(CONFIGS, "experiment").glob("*.yaml"))
+FAST = [
+    "encoder.width=0.25", "encoder.feature_dim=16",
+    "data.batch_size=2", "data.num_workers=0", "trainer.max_epochs=2", "~logger",
+    "callbacks.progress_bar=null", "callbacks.lr_monitor=null", "trainer.log_every_n_steps=1",
+]  # fmt: skip
+
+
+def _compose(config="train", overrides=()):
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        return compose(config_name=config, overrides=list(overrides))
+
+
+def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
+    return _compose("train", [
+        f"dataset.dir={data_dir}", f"paths.output_dir={out_dir}",
+        f"paths.log_dir={log_dir or out_dir.parent}", f"paths.work_dir={out_dir}", *FAST,
+        *overrides,
+    ])  # fmt: skip
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_experiment_composes_and_builds_its_model(experiment):
+    cfg = _compose("train", [f"experiment={experiment}", "paths.output_dir=/tmp/x"])
+    assert cfg.run_name == f"{cfg.dataset.name}-{cfg.model.method}"
+    assert cfg.dataset.name.startswith(experiment.split("_")[0])
+    if cfg.model.method == "base2":
+        cfg.model.net.encoder_checkpoint = None  # baseline 1 is not trained here
+    module = instantiate(cfg.model)
+    assert module(torch.rand(1, 2, 3, 64, 64)).shape == (1, 54)
+
+
+def test_unknown_model_or_encoder_names_fail_clearly():
+    with pytest.raises(MissingConfigException, match="nope"):
+        _compose("train", ["model=nope"])
+    cfg = _compose("train", ["encoder.name=vgg99", "paths.output_dir=/tmp/x"])
+    with pytest.raises(Exception, match="encoder name must be one of"):
+        instantiate(cfg.model)
+
+
+def test_missing_data_directory_fails_clearly(tmp_path):
+    cfg = _train_cfg(tmp_path / "no-such-data", tmp_path / "run")
+    with pytest.raises(Exception, match="no-such-data does not exist"):
+        train_entry.train(cfg)
+
+
+@pytest.mark.parametrize("model", ["cnn_lstm", "base1"])
+def test_tiny_batch_is_overfit(model):
+    torch.manual_seed(0)
+    cfg = _compose("train", [f"model={model}", "encoder.width=0.25", "encoder.dropout=0.0",
+                             "encoder.feature_dim=32",
+                             "model.label_smoothing=0.0", "paths.output_dir=/tmp/x"])  # fmt: skip
+    module = instantiate(cfg.model)
+    video = torch.rand(6, 3, 3, 48, 48, generator=torch.Generator().manual_seed(0))
+    labels = torch.tensor([0, 7, 19, 26, 40, 53])
+    optimizer = torch.optim.Adam(module.parameters(), lr=3e-3)
+    module.train()
+    for _ in range(300):
+        optimizer.zero_grad()
+        loss = module.loss(module(video), labels)
+        loss.backward()
+        optimizer.step()
+    assert loss.item() < 0.05
+    module.eval()
+    assert (module(video).argmax(1) == labels).all()
+
+
+def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_folder, tmp_path):
+    logs = tmp_path / "logs"
+    run = logs / "train" / "tiny-cnn_lstm"
+    metrics = train_entry.train(_train_cfg(model_dataset, run, log_dir=logs))
+    best = run / "checkpoints" / "best.ckpt"
+    assert best.is_file() and (run / "checkpoints" / "last.ckpt").is_file()
+    assert 0.0 <= metrics["test/acc"] <= 1.0
+    for name in ("sim_test.json", "sim_test.md", "confusion_test.png"):
+        assert (run / "eval" / name).stat().st_size > 0
+
+    # Checkpoint round trip: the rebuilt module predicts exactly what the saved one did.
+    first, second = load_classifier(best), load_classifier(best)
+    clip = torch.rand(2, 4, 3, 32, 32)
+    torch.testing.assert_close(first(clip), second(clip), rtol=0, atol=0)
+    stored = torch.load(best, weights_only=False)["state_dict"]
+    for key, value in first.state_dict().items():
+        torch.testing.assert_close(value, stored[key], rtol=0, atol=0, msg=key)
+
+    # Running again resumes from last.ckpt: nothing is retrained, the best stays the same.
+    mtime = best.stat().st_mtime_ns
+    train_entry.train(_train_cfg(model_dataset, run, log_dir=logs))
+    assert best.stat().st_mtime_ns == mtime
+
+    # Baseline 1 trains on frames and is scored on clips; baseline 2 freezes its CNN.
+    base1 = logs / "train" / "tiny-base1"
+    cfg1 = _train_cfg(model_dataset, base1, "model=base1", "data.mode=frame", log_dir=logs)
+    train_entry.train(cfg1)
+    base2 = logs / "train" / "tiny-base2"
+    encoder = f"model.net.encoder_checkpoint={base1}/checkpoints/best.ckpt"
+    cfg2 = _train_cfg(model_dataset, base2, "model=base2", encoder, log_dir=logs)
+    train_entry.train(cfg2)
+    b1, b2 = load_classifier(base1 / "checkpoints/best.ckpt"), load_classifier(
+        base2 / "checkpoints/best.ckpt"
+    )
+    for key, value in b1.net.encoder.state_dict().items():
+        torch.testing.assert_close(b2.net.encoder.state_dict()[key], value, msg=key)
+
+    # The evaluation entry on the simulated test split and on real videos.
+    out = tmp_path / "eval"
+    cfg = _compose("evaluate", [
+        f"ckpt_path={best}", f"data_dir={model_dataset}", f"real_dir={real_folder}",
+        f"out_dir={out}", "real.clip_len=4", "real.clip_stride=4", "real.size=32",
+        "bootstrap.rounds=50",
+    ])  # fmt: skip
+    results = evaluate_run(cfg)
+    assert results["sim"]["clips"] == 2 and results["real"]["videos"] == 4
+    correlations = results["real"]["correlations"]
+    assert set(correlations) == {"all", "W1", "W2"}
+    assert correlations["all"]["stiffness"]["count"] == 4
+    for name in ("real.json", "real.md", "real_videos.csv", "sim_test.json", "confusion_test.png"):
+        assert (out / name).stat().st_size > 0
+    assert "Table 7.3" in (out / "real.md").read_text()
+
+
+def test_evaluation_errors_name_the_problem(model_dataset, real_folder, tmp_path):
+    with pytest.raises(ValueError, match=r"data_dir .* and/or real_dir"):
+        evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt"]))
+    with pytest.raises(FileNotFoundError, match="real_dir"):
+        evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt", f"real_dir={tmp_path}/none"]))
+    with pytest.raises(FileNotFoundError, match="checkpoint"):
+        evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt", f"data_dir={model_dataset}"]))
+    (real_folder / "labels.csv").write_text("video,stiffness\nfabric0.mp4,1.0\n")
+    from datasets.real_video import RealVideoDataset
+
+    with pytest.raises(ValueError, match="density"):
+        RealVideoDataset(real_folder)
