@@ -42,6 +42,12 @@ def _loggers(cfg: DictConfig) -> list:
     return [instantiate(c) for c in (cfg.get("logger") or {}).values() if c is not None]
 
 
+def _device_name() -> str:
+    if torch.cuda.is_available():
+        return torch.cuda.get_device_name()
+    return f"CPU, {torch.get_num_threads()} threads"
+
+
 def train(cfg: DictConfig) -> dict:
     """Fit (or resume), then evaluate the best checkpoint; returns the test metrics."""
     from models.evaluate import evaluate_simulated
@@ -63,14 +69,19 @@ def train(cfg: DictConfig) -> dict:
         logger.log_hyperparams(config)
     if cfg.train:
         trainer.fit(model, datamodule=datamodule, ckpt_path=_resume_path(cfg, output_dir))
-    metrics: dict = {"best_val_acc": float(getattr(model, "best_val_acc", 0.0))}
+    metrics: dict = {
+        "best_val_acc": float(getattr(model, "best_val_acc", 0.0)),
+        "train_minutes": model.train_seconds / 60,
+        "epochs": int(trainer.current_epoch),
+        "device": _device_name(),
+    }
     if cfg.test and trainer.is_global_zero:
         best = output_dir / "checkpoints" / "best.ckpt"
         if not best.is_file():
             raise FileNotFoundError(f"no best checkpoint at {best}: did training run?")
         result = evaluate_simulated(
             load_classifier(best), cfg.dataset.dir, output_dir / "eval",
-            split="test", batch_size=int(cfg.data.batch_size),
+            split="test", batch_size=int(cfg.data.batch_size), extra=metrics,
         )  # fmt: skip
         metrics.update({f"test/{k}": v for k, v in result.items() if isinstance(v, float)})
         log.info("test top-1 %.3f (best val %.3f)", result["acc"], metrics["best_val_acc"])

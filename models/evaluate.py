@@ -86,8 +86,12 @@ def evaluate_simulated(
     *,
     split: str = "test",
     batch_size: int = 16,
+    extra: dict | None = None,
 ) -> dict:
-    """Metrics of ``module`` on one split of a generated dataset; writes JSON, MD and PNG."""
+    """Metrics of ``module`` on one split of a generated dataset; writes JSON, MD and PNG.
+
+    ``extra`` entries (e.g. training time and device) are stored in the JSON as they are.
+    """
     dataset = ClothClipDataset(data_dir, split, verify=True)
     logits, meta = predict(module, dataset, batch_size=batch_size, desc=f"{split} clips")
     labels = torch.tensor([m["label"] for m in meta])
@@ -97,6 +101,7 @@ def evaluate_simulated(
         "split": split,
         "clips": len(meta),
         **classification_metrics(logits, labels),
+        **(extra or {}),
     }
     by_wind: dict[int, list[int]] = defaultdict(list)
     for i, m in enumerate(meta):

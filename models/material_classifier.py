@@ -14,6 +14,7 @@ Validation metrics are computed on the whole epoch's predictions, gathered over 
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -67,6 +68,9 @@ class MaterialClassifierModule(L.LightningModule):
         self.loss = nn.CrossEntropyLoss(label_smoothing=label_smoothing)
         self._outputs: dict[str, list[tuple[torch.Tensor, torch.Tensor]]] = {"val": [], "test": []}
         self.best_val_acc = 0.0
+        self.train_seconds = 0.0
+        """Wall time of the training epochs and their validation, summed across resumes."""
+        self._epoch_started: float | None = None
 
     def forward(self, pixels: torch.Tensor) -> torch.Tensor:
         """Logits (B, 54) of clips or frames."""
@@ -112,21 +116,30 @@ class MaterialClassifierModule(L.LightningModule):
         for name, value in metrics.items():
             self.log(f"{split}/{name}", value, prog_bar=name == "acc", sync_dist=False)
 
+    def on_train_epoch_start(self) -> None:
+        """Start the epoch's clock."""
+        self._epoch_started = time.perf_counter()
+
     def on_validation_epoch_end(self) -> None:
         """Log the validation metrics of the whole epoch."""
         self._epoch_metrics("val")
+        if self._epoch_started is not None:
+            self.train_seconds += time.perf_counter() - self._epoch_started
+            self._epoch_started = None
 
     def on_test_epoch_end(self) -> None:
         """Log the test metrics of the whole split."""
         self._epoch_metrics("test")
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """Keep the best validation accuracy across resumes."""
+        """Keep the best validation accuracy and the training time across resumes."""
         checkpoint["best_val_acc"] = self.best_val_acc
+        checkpoint["train_seconds"] = self.train_seconds
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        """Restore the best validation accuracy of a resumed run."""
+        """Restore the best validation accuracy and training time of a resumed run."""
         self.best_val_acc = float(checkpoint.get("best_val_acc", 0.0))
+        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
 
     def configure_optimizers(self):
         """The configured optimizer (AdamW 1e-3 by default) and optional per-epoch scheduler."""

@@ -1,0 +1,117 @@
+"""Regenerate the Table 7.2-style comparison (baseline 1, baseline 2, CNN+LSTM) from run folders.
+
+``python -m models.table72`` reads ``logs/train/<dataset>-<method>/eval/sim_test.json`` of
+the wind and arm datasets (the runs of ``configs/experiment/*_L1_random_*.yaml``), writes
+``reports/table72.md`` and replaces the block between ``<!-- table72:start -->`` and
+``<!-- table72:end -->`` in README.md. Missing runs show as "-"; the thesis's numbers for the
+same setting (Unif-1 / Rand1) stand beside ours.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+from .report import markdown_table, write_text
+
+__all__ = ["METHODS", "THESIS_TABLE_72", "collect", "main", "render_table"]
+
+METHODS = {"base1": "Base-1 (RGB-I)", "base2": "Base-2 (RGB-V)", "cnn_lstm": "CNN+LSTM (RGB-V)"}
+THESIS_TABLE_72 = {
+    ("arm", 1): (54.0, 56.8, 62.9),
+    ("arm", 2): (51.9, 57.0, 62.7),
+    ("arm", 3): (53.6, 56.9, 71.8),
+    ("wind", 1): (53.6, 53.3, 64.7),
+    ("wind", 2): (58.9, 57.0, 64.5),
+    ("wind", 3): (56.9, 53.0, 66.7),
+}
+"""Thesis Table 7.2 top-1 % (Base-1, Base-2, CNN+LSTM), uniform remeshing level 1-3, Rand."""
+START, END = "<!-- table72:start -->", "<!-- table72:end -->"
+
+
+def dataset_name(motion: str, level: int, texture: str, preset: str, seed: int) -> str:
+    """The folder name ``datasets.generate`` (and ``configs/dataset``) give a dataset."""
+    return f"{motion}-L{level}-{texture}-{preset}-s{seed}"
+
+
+def collect(log_dir: Path, name: str) -> dict[str, dict]:
+    """``method -> sim_test.json`` of the runs of dataset ``name`` that have one."""
+    found = {}
+    for method in METHODS:
+        path = log_dir / "train" / f"{name}-{method}" / "eval" / "sim_test.json"
+        if path.is_file():
+            found[method] = json.loads(path.read_text())
+    return found
+
+
+def _cell(result: dict | None) -> str:
+    if result is None:
+        return "-"
+    return f"{100 * result['acc']:.1f} ({100 * result['top5']:.0f})"
+
+
+def render_table(log_dir: Path, *, level: int, texture: str, preset: str, seed: int) -> str:
+    """Markdown: one row per motion, ours (top-1, top-5 in brackets) then the thesis's."""
+    rows = []
+    notes = set()
+    for motion in ("wind", "arm"):
+        name = dataset_name(motion, level, texture, preset, seed)
+        results = collect(log_dir, name)
+        thesis = THESIS_TABLE_72.get((motion, level), (None, None, None))
+        ours = [_cell(results.get(m)) for m in METHODS]
+        theirs = ["-" if t is None else f"{t:.1f}" for t in thesis]
+        clips = next((r["clips"] for r in results.values()), "-")
+        rows.append([motion, f"Unif-{level}", texture, clips, *ours, *theirs])
+        for result in results.values():
+            if result.get("device"):
+                notes.add(f"{result['device']}")
+    header = ["motion", "mesh", "texture", "test clips",
+              *[f"ours {v}" for v in METHODS.values()],
+              *[f"thesis {v}" for v in METHODS.values()]]  # fmt: skip
+    text = markdown_table(header, rows)
+    text += (
+        f"\nOurs: top-1 % over 54 classes on the held-out test simulations of the `{preset}` "
+        "preset (top-5 % in brackets); thesis: Table 7.2, same motion, uniform remeshing, "
+        "random texture."
+    )
+    if notes:
+        text += " Trained on: " + "; ".join(sorted(notes)) + "."
+    return text + "\n"
+
+
+def update_readme(readme: Path, table: str) -> None:
+    """Replace the text between the table72 markers of ``readme``."""
+    text = readme.read_text()
+    if START not in text or END not in text:
+        raise ValueError(f"{readme} has no {START} ... {END} block to replace")
+    pattern = re.compile(re.escape(START) + ".*?" + re.escape(END), re.S)
+    write_text(readme, pattern.sub(lambda _: f"{START}\n{table}{END}", text))
+
+
+def main(argv: list[str] | None = None) -> str:
+    """Write reports/table72.md and refresh the README block; returns the table."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--log-dir", type=Path, default=Path("logs"))
+    parser.add_argument("--level", type=int, default=1)
+    parser.add_argument("--texture", default="random")
+    parser.add_argument("--preset", default="full")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("reports/table72.md"))
+    parser.add_argument("--readme", type=Path, default=Path("README.md"))
+    parser.add_argument("--no-readme", action="store_true", help="only write --out")
+    args = parser.parse_args(argv)
+    table = render_table(
+        args.log_dir, level=args.level, texture=args.texture, preset=args.preset, seed=args.seed
+    )
+    write_text(args.out, "# Table 7.2 (style): material classification on simulated clips\n\n"
+               + table)  # fmt: skip
+    if not args.no_readme:
+        update_readme(args.readme, table)
+    print(table)
+    return table
+
+
+if __name__ == "__main__":
+    main()

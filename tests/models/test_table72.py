@@ -1,0 +1,39 @@
+"""The Table 7.2 regeneration command: collects run reports and patches the README block."""
+
+import json
+
+import pytest
+
+from models.table72 import END, START, main
+
+
+def _report(log_dir, name, acc):
+    path = log_dir / "train" / name / "eval" / "sim_test.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps({"acc": acc, "top5": 0.5, "clips": 432, "device": "CPU, 2 threads"}))
+
+
+def test_table_collects_runs_and_patches_readme(tmp_path):
+    logs = tmp_path / "logs"
+    _report(logs, "wind-L1-random-full-s0-cnn_lstm", 0.25)
+    _report(logs, "wind-L1-random-full-s0-base1", 0.125)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{START}\nold table\n{END}\noutro\n")
+    out = tmp_path / "table72.md"
+    table = main(["--log-dir", str(logs), "--out", str(out), "--readme", str(readme)])
+    wind = next(line for line in table.splitlines() if line.startswith("| wind"))
+    cells = [c.strip() for c in wind.split("|")[1:-1]]
+    assert cells[3:7] == ["432", "12.5 (50)", "-", "25.0 (50)"]
+    assert cells[7:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    text = readme.read_text()
+    assert "old table" not in text and text.startswith("intro\n") and text.endswith("outro\n")
+    assert table in text and out.read_text().endswith(table)
+    assert "CPU, 2 threads" in table
+
+
+def test_readme_without_markers_is_refused(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("no block\n")
+    with pytest.raises(ValueError, match="table72:start"):
+        main(["--log-dir", str(tmp_path), "--out", str(tmp_path / "t.md"),
+              "--readme", str(readme)])  # fmt: skip
