@@ -82,9 +82,11 @@ class MaterialClassifierModule(L.LightningModule):
         labels = batch["label"]
         loss = self.loss(logits, labels)
         size = labels.shape[0]
-        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=size)
+        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=size,
+                 sync_dist=True)
         acc = (logits.argmax(1) == labels).float().mean()
-        self.log("train/acc", acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=size)
+        self.log("train/acc", acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=size,
+                 sync_dist=True)
         return loss
 
     def _eval_step(self, split: str, batch: dict) -> None:
@@ -114,7 +116,8 @@ class MaterialClassifierModule(L.LightningModule):
             self.best_val_acc = max(self.best_val_acc, metrics["acc"])
             metrics["acc_best"] = self.best_val_acc
         for name, value in metrics.items():
-            self.log(f"{split}/{name}", value, prog_bar=name == "acc", sync_dist=False)
+            # Every rank holds the same gathered value: syncing only silences the DDP warning.
+            self.log(f"{split}/{name}", value, prog_bar=name == "acc", sync_dist=True)
 
     def on_train_epoch_start(self) -> None:
         """Start the epoch's clock."""

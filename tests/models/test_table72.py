@@ -23,8 +23,8 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     table = main(["--log-dir", str(logs), "--out", str(out), "--readme", str(readme)])
     wind = next(line for line in table.splitlines() if line.startswith("| wind"))
     cells = [c.strip() for c in wind.split("|")[1:-1]]
-    assert cells[3:7] == ["432", "12.5 (50)", "-", "25.0 (50)"]
-    assert cells[7:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    assert cells[3:8] == ["full", "432", "12.5 (50)", "-", "25.0 (50)"]
+    assert cells[8:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
     text = readme.read_text()
     assert "old table" not in text and text.startswith("intro\n") and text.endswith("outro\n")
     assert table in text and out.read_text().endswith(table)
