@@ -48,6 +48,20 @@ def _device_name() -> str:
     return f"CPU, {torch.get_num_threads()} threads"
 
 
+def _training_summary(last: Path) -> dict:
+    """Epochs, training minutes and best val accuracy of a run, from its last checkpoint.
+
+    Read from the checkpoint so that resumed and evaluation-only runs report the whole training.
+    """
+    summary: dict = {"device": _device_name()}
+    if last.is_file():
+        state = torch.load(last, map_location="cpu", weights_only=False)
+        summary["epochs"] = int(state.get("epoch", -1)) + 1
+        summary["train_minutes"] = float(state.get("train_seconds", 0.0)) / 60
+        summary["best_val_acc"] = float(state.get("best_val_acc", 0.0))
+    return summary
+
+
 def train(cfg: DictConfig) -> dict:
     """Fit (or resume), then evaluate the best checkpoint; returns the test metrics."""
     from models.evaluate import evaluate_simulated
@@ -69,12 +83,7 @@ def train(cfg: DictConfig) -> dict:
         logger.log_hyperparams(config)
     if cfg.train:
         trainer.fit(model, datamodule=datamodule, ckpt_path=_resume_path(cfg, output_dir))
-    metrics: dict = {
-        "best_val_acc": float(getattr(model, "best_val_acc", 0.0)),
-        "train_minutes": model.train_seconds / 60,
-        "epochs": int(trainer.current_epoch),
-        "device": _device_name(),
-    }
+    metrics = _training_summary(output_dir / "checkpoints" / "last.ckpt")
     if cfg.test and trainer.is_global_zero:
         best = output_dir / "checkpoints" / "best.ckpt"
         if not best.is_file():
@@ -84,7 +93,7 @@ def train(cfg: DictConfig) -> dict:
             split="test", batch_size=int(cfg.data.batch_size), extra=metrics,
         )  # fmt: skip
         metrics.update({f"test/{k}": v for k, v in result.items() if isinstance(v, float)})
-        log.info("test top-1 %.3f (best val %.3f)", result["acc"], metrics["best_val_acc"])
+        log.info("test top-1 %.3f (best val %.3f)", result["acc"], metrics.get("best_val_acc", 0))
     return metrics
 
 

@@ -58,6 +58,7 @@ def render_table(
     """Markdown: one row per motion, ours (top-1, top-5 in brackets) then the thesis's."""
     rows = []
     notes = set()
+    budgets: list[str] = []
     for motion, preset in presets.items():
         name = dataset_name(motion, level, texture, preset, seed)
         results = collect(log_dir, name)
@@ -66,9 +67,12 @@ def render_table(
         theirs = ["-" if t is None else f"{t:.1f}" for t in thesis]
         clips = next((r["clips"] for r in results.values()), "-")
         rows.append([motion, f"Unif-{level}", texture, preset, clips, *ours, *theirs])
-        for result in results.values():
+        for method, result in results.items():
             if result.get("device"):
                 notes.add(f"{result['device']}")
+            if "epochs" in result:
+                minutes = result.get("train_minutes", 0.0)
+                budgets.append(f"{motion} {method} {result['epochs']} epochs / {minutes:.0f} min")
     header = ["motion", "mesh", "texture", "preset", "test clips",
               *[f"ours {v}" for v in METHODS.values()],
               *[f"thesis {v}" for v in METHODS.values()]]  # fmt: skip
@@ -80,6 +84,8 @@ def render_table(
     )
     if notes:
         text += " Trained on: " + "; ".join(sorted(notes)) + "."
+    if budgets:
+        text += " Training: " + ", ".join(budgets) + "."
     return text + "\n"
 
 

@@ -1,5 +1,6 @@
 """train.py and models.evaluate end to end on a tiny generated dataset and a tiny real folder."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -89,6 +90,8 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     assert 0.0 <= metrics["test/acc"] <= 1.0
     for name in ("sim_test.json", "sim_test.md", "confusion_test.png"):
         assert (run / "eval" / name).stat().st_size > 0
+    report = json.loads((run / "eval" / "sim_test.json").read_text())
+    assert report["epochs"] == 2 and report["train_minutes"] > 0  # last.ckpt after every epoch
 
     # Checkpoint round trip: the rebuilt module predicts exactly what the saved one did.
     first, second = load_classifier(best), load_classifier(best)
