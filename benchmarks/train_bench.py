@@ -107,8 +107,10 @@ def main(argv: list[str] | None = None) -> dict:
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
     device = torch.device(name)
-    label = torch.cuda.get_device_name(device) if device.type == "cuda" else (
-        f"CPU, {torch.get_num_threads()} threads"
+    label = (
+        torch.cuda.get_device_name(device)
+        if device.type == "cuda"
+        else (f"CPU, {torch.get_num_threads()} threads")
     )
     results = {}
     print(f"device: {label}; batch {args.batch} clips of {args.frames} x 3 x {args.size}^2")

@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import cv2
 import pytest
 
 from datasets.generation import generate_dataset
@@ -38,3 +39,13 @@ def tiny_dataset(tmp_path_factory):
     manifest = generate_dataset(tiny_spec(), root, progress=False)
     assert manifest is not None
     return root
+
+
+def write_mp4(path, frames, fps):
+    """uint8 (T, H, W, 3) BGR frames -> an mp4v file."""
+    height, width = frames.shape[1:3]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    assert writer.isOpened()
+    for frame in frames:
+        writer.write(frame)
+    writer.release()

@@ -7,25 +7,18 @@ import torch
 
 from datasets.real_video import RealVideoDataset
 
+from .conftest import write_mp4
+
 
 def _frames(count: int, seed: int, height: int = 48, width: int = 64) -> np.ndarray:
     base = np.random.default_rng(seed).integers(0, 255, size=(height, width, 3), dtype=np.uint8)
     return np.stack([np.roll(base, 2 * t, axis=1) for t in range(count)])
 
 
-def _write_mp4(path, frames, fps):
-    height, width = frames.shape[1:3]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    assert writer.isOpened()
-    for frame in frames:
-        writer.write(frame)
-    writer.release()
-
-
 @pytest.fixture
 def folder(tmp_path):
-    _write_mp4(tmp_path / "silk.mp4", _frames(45, 0), 30.0)
-    _write_mp4(tmp_path / "denim.mp4", _frames(25, 1), 15.0)
+    write_mp4(tmp_path / "silk.mp4", _frames(45, 0), 30.0)
+    write_mp4(tmp_path / "denim.mp4", _frames(25, 1), 15.0)
     frames_dir = tmp_path / "wool"
     frames_dir.mkdir()
     for t, frame in enumerate(_frames(12, 2)):

@@ -2,13 +2,12 @@
 
 import dataclasses
 
-import cv2
 import numpy as np
 import pytest
 
 from datasets.generation import generate_dataset
 from datasets.spec import SizePreset
-from tests.datasets.conftest import tiny_spec
+from tests.datasets.conftest import tiny_spec, write_mp4
 
 # 2 classes x 4 simulations (2 train, 1 val, 1 test), 4-frame 32 x 32 clips.
 MODEL_PRESET = SizePreset(
@@ -24,16 +23,6 @@ def model_dataset(tmp_path_factory):
     spec = dataclasses.replace(tiny_spec(), preset=MODEL_PRESET)
     assert generate_dataset(spec, root, progress=False) is not None
     return root
-
-
-def write_mp4(path, frames, fps):
-    """uint8 (T, H, W, 3) BGR frames -> an mp4v file."""
-    height, width = frames.shape[1:3]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    assert writer.isOpened()
-    for frame in frames:
-        writer.write(frame)
-    writer.release()
 
 
 @pytest.fixture
