@@ -21,22 +21,24 @@ from __future__ import annotations
 
 import torch
 
-from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
+from simulator.material import CLASS_COUNT
+
+from .metrics import grid_position
 
 __all__ = ["SCORE_NAMES", "material_scores"]
 
 SCORE_NAMES = ("material_score", "stretch_score", "bend_score", "predicted_class")
-BEND_COUNT = len(BEND_MULTIPLIERS)
 
 
 def material_scores(probs: torch.Tensor) -> dict[str, torch.Tensor]:
     """Scores of class probabilities ``(N, 54)`` -> dict of ``(N,)`` tensors (see module doc)."""
     if probs.ndim != 2 or probs.shape[1] != CLASS_COUNT:
         raise ValueError(f"probs must have shape (N, {CLASS_COUNT}), got {tuple(probs.shape)}")
-    classes = torch.arange(CLASS_COUNT, dtype=probs.dtype, device=probs.device)
+    classes = torch.arange(CLASS_COUNT, device=probs.device)
+    stretch, bend = grid_position(classes)
     return {
-        "material_score": probs @ classes,
-        "stretch_score": probs @ torch.div(classes, BEND_COUNT, rounding_mode="floor"),
-        "bend_score": probs @ torch.remainder(classes, BEND_COUNT),
+        "material_score": probs @ classes.to(probs.dtype),
+        "stretch_score": probs @ stretch.to(probs.dtype),
+        "bend_score": probs @ bend.to(probs.dtype),
         "predicted_class": probs.argmax(dim=1).to(probs.dtype),
     }
