@@ -13,7 +13,12 @@ torch and numpy are imported here (no hydra / lightning / pyrender / cv2).
 
 from .cloth import ClothModelKind, build_cloth_model
 from .effects import PHYSICS_EFFECT_NAMES, PhysicsEffects
-from .integrators import IntegratorBackwardEuler, SimulationDiverged, solve_static
+from .integrators import (
+    IntegratorBackwardEuler,
+    IntegratorNewmark,
+    SimulationDiverged,
+    solve_static,
+)
 from .material import (
     BASIS_MATERIAL,
     BEND_MULTIPLIERS,
@@ -44,6 +49,7 @@ __all__ = [
     "ClothMaterial",
     "ClothModelKind",
     "IntegratorBackwardEuler",
+    "IntegratorNewmark",
     "MaterialError",
     "MeshError",
     "MeshSequence",

@@ -112,6 +112,9 @@ class SimState:
     """Vertex velocities [m/s], shape (B, V, 3)."""
     time: torch.Tensor
     """Simulated time [s], shape (B,)."""
+    acc: torch.Tensor | None = None
+    """Vertex accelerations [m/s²], shape (B, V, 3), carried by second-order integrators
+    (Newmark); ``None`` when unknown (Newmark then takes it from the equations of motion)."""
 
     def to(self, device=None, dtype=None) -> SimState:
         """Copy to ``device`` / float ``dtype``."""

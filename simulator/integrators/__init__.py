@@ -2,5 +2,12 @@
 
 from .backward_euler import IntegratorBackwardEuler, solve_static
 from .base import IncrementalPotential, SimulationDiverged
+from .newmark import IntegratorNewmark
 
-__all__ = ["IncrementalPotential", "IntegratorBackwardEuler", "SimulationDiverged", "solve_static"]
+__all__ = [
+    "IncrementalPotential",
+    "IntegratorBackwardEuler",
+    "IntegratorNewmark",
+    "SimulationDiverged",
+    "solve_static",
+]

@@ -15,21 +15,9 @@ import torch
 
 from ..model import SimControl, SimModel, SimState
 from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
-from .base import IncrementalPotential
+from .base import IncrementalPotential, bind_energies, with_pins
 
 __all__ = ["IntegratorBackwardEuler", "solve_static"]
-
-
-def _bind(model: SimModel, control: SimControl, pos: torch.Tensor):
-    return tuple(e.bind(model, control, pos) for e in model.energies)
-
-
-def _with_pins(model: SimModel, pos: torch.Tensor, control: SimControl) -> torch.Tensor:
-    if model.pin_indices.numel() == 0:
-        return pos
-    out = pos.clone()
-    out[:, model.pin_indices] = control.pin_pos.to(pos)
-    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,11 +39,11 @@ class IntegratorBackwardEuler:
         if not dt > 0:
             raise ValueError(f"dt must be > 0 s, got {dt}")
         settings = settings or self.settings
-        energies = _bind(model, control, state.pos)
+        energies = bind_energies(model, control, state.pos)
         step_forces = tuple(f.linearize(model, state, control, energies) for f in model.forces)
         x_pred = state.pos + dt * state.vel
         objective = IncrementalPotential(model, energies, step_forces, state.pos, x_pred, dt)
-        x0 = _with_pins(model, x_pred, control)
+        x0 = with_pins(model, x_pred, control)
         x, stats = newton_minimize(
             objective, x0, model.free_mask(), settings, aggregates=model.aggregates
         )
@@ -79,11 +67,11 @@ def solve_static(
     settings = settings or NewtonSettings(
         max_iters=50, tol_dx=1e-9, cg_rtol=1e-6, cg_max_iters=1000
     )
-    energies = _bind(model, control, state.pos)
+    energies = bind_energies(model, control, state.pos)
     objective = IncrementalPotential(
         model, energies, (), state.pos, state.pos, None, regularization=regularization
     )
     x, stats = newton_minimize(
-        objective, _with_pins(model, state.pos, control), model.free_mask(), settings
+        objective, with_pins(model, state.pos, control), model.free_mask(), settings
     )
-    return dataclasses.replace(state, pos=x, vel=torch.zeros_like(x)), stats
+    return dataclasses.replace(state, pos=x, vel=torch.zeros_like(x), acc=None), stats

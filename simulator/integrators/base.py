@@ -9,34 +9,56 @@ import torch
 from ..energies.base import ElementBlocks
 from ..solvers.block_sparse import BlockSparse
 
-__all__ = ["IncrementalPotential", "SimulationDiverged"]
+__all__ = ["IncrementalPotential", "SimulationDiverged", "bind_energies", "with_pins"]
 
 
 class SimulationDiverged(RuntimeError):
     """A rollout produced NaN/inf or a velocity beyond the bound (names instance and step)."""
 
 
+def bind_energies(model, control, pos: torch.Tensor) -> tuple:
+    """The model's energies bound to one step (obstacles, candidate pairs at ``pos``)."""
+    return tuple(e.bind(model, control, pos) for e in model.energies)
+
+
+def with_pins(model, pos: torch.Tensor, control) -> torch.Tensor:
+    """``pos`` (B, V, 3) with the pinned vertices moved to ``control.pin_pos``."""
+    if model.pin_indices.numel() == 0:
+        return pos
+    out = pos.clone()
+    out[:, model.pin_indices] = control.pin_pos.to(pos)
+    return out
+
+
 @dataclasses.dataclass(frozen=True)
 class IncrementalPotential:
-    """``1/(2h²)|x - x_pred|²_M + sum E(x) + h sum_f [1/2 u^T D u - f^T v]``, v = (x - x_n)/h.
+    """``1/(2h²)|x - x_pred|²_M + sum E(x) + h_v sum_f [1/2 u^T D u - f^T v]``.
 
-    With ``dt = None`` it is the static potential ``sum E(x)`` (plus a tiny
-    Levenberg shift for SPD-ness), used for equilibrium solves.
+    The velocity is ``v = (x - x_start) / h_v``; backward Euler has ``h_v = h = dt`` and
+    ``x_start = x_n``, Newmark other (affine) choices (see :mod:`.newmark`). With
+    ``dt = None`` it is the static potential ``sum E(x)`` (plus a tiny Levenberg shift for
+    SPD-ness), used for equilibrium solves.
     """
 
     model: object
     energies: tuple
     step_forces: tuple
     x_start: torch.Tensor
-    """Positions at the start of the step [m], shape (B, V, 3)."""
+    """Where the step's velocity is zero (backward Euler: the start of the step) [m],
+    shape (B, V, 3)."""
     x_pred: torch.Tensor
     """Inertial prediction ``x_n + h v_n`` [m], shape (B, V, 3)."""
     dt: float | None
     regularization: float = 0.0
     """Levenberg shift [N/m] added to the Hessian diagonal (static solves)."""
+    velocity_dt: float | None = None
+    """``h_v`` [s] of ``v = (x - x_start) / h_v``; ``None`` means ``dt``."""
 
     def _mass(self) -> torch.Tensor:
         return self.model.vert_mass[..., None]
+
+    def _velocity_dt(self) -> float:
+        return self.dt if self.velocity_dt is None else self.velocity_dt
 
     def value(self, x):
         """Objective per instance, shape (B,)."""
@@ -45,9 +67,10 @@ class IncrementalPotential:
             return total
         h = self.dt
         total = total + 0.5 / (h * h) * (self._mass() * (x - self.x_pred) ** 2).sum(dim=(1, 2))
-        vel = (x - self.x_start) / h
+        hv = self._velocity_dt()
+        vel = (x - self.x_start) / hv
         for f in self.step_forces:
-            total = total + h * f.power_potential(vel)
+            total = total + hv * f.power_potential(vel)
         return total
 
     def gradient(self, x):
@@ -57,7 +80,7 @@ class IncrementalPotential:
             return grad
         h = self.dt
         grad = grad + self._mass() / (h * h) * (x - self.x_pred)
-        vel = (x - self.x_start) / h
+        vel = (x - self.x_start) / self._velocity_dt()
         for f in self.step_forces:
             grad = grad - f.force(vel)
         return grad
@@ -82,7 +105,7 @@ class IncrementalPotential:
             else:
                 loose.append(b)
         forces = self.step_forces if self.dt is not None else ()
-        inv_h = 0.0 if self.dt is None else 1.0 / self.dt
+        inv_h = 0.0 if self.dt is None else 1.0 / self._velocity_dt()
         for f in forces:
             if f.damping_vertex is not None:
                 diag = diag + inv_h * f.damping_vertex
