@@ -90,7 +90,8 @@ def train(cfg: DictConfig) -> dict:
             raise FileNotFoundError(f"no best checkpoint at {best}: did training run?")
         result = evaluate_simulated(
             load_classifier(best), cfg.dataset.dir, output_dir / "eval",
-            split="test", batch_size=int(cfg.data.batch_size), extra=metrics,
+            split="test", split_protocol=str(cfg.data.split_protocol),
+            batch_size=int(cfg.data.batch_size), extra=metrics,
         )  # fmt: skip
         metrics.update({f"test/{k}": v for k, v in result.items() if isinstance(v, float)})
         log.info("test top-1 %.3f (best val %.3f)", result["acc"], metrics.get("best_val_acc", 0))

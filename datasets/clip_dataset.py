@@ -48,6 +48,8 @@ class ClothClipDataset(Dataset):
         check_clips: Also compare each decoded clip with its recorded pixel checksum.
         cache: Keep each decoded clip (uint8) in memory after its first read, so later
             epochs skip PNG decoding (a full preset is ~0.75 GB per process).
+        split_protocol: How clips are assigned to splits, one of
+            :data:`~datasets.manifest.SPLIT_PROTOCOLS` (``simulation``: as generated).
     """
 
     def __init__(
@@ -59,14 +61,15 @@ class ClothClipDataset(Dataset):
         verify: bool = True,
         check_clips: bool = False,
         cache: bool = False,
+        split_protocol: str = "simulation",
     ):
         self.manifest = Manifest.load(root)
-        if verify:
-            self.manifest.verify(split)  # only this split's shards: each split opens once
         self.split = split
-        self.records = self.manifest.clips_of(split)
+        self.records = self.manifest.clips_of(split, split_protocol)
         if not self.records:
             raise ValueError(f"split {split!r} of {root} has no clips")
+        if verify:  # only the shards this split reads: each split opens once
+            self.manifest.verify(names={r["shard"] for r in self.records})
         self.transform = transform
         self.check_clips = check_clips
         self._readers: dict[str, ShardReader] = {}
@@ -119,8 +122,11 @@ class ClothFrameDataset(Dataset):
         transform: Callable[[torch.Tensor], torch.Tensor] | None = None,
         verify: bool = True,
         cache: bool = False,
+        split_protocol: str = "simulation",
     ):
-        self.clips = ClothClipDataset(root, split, verify=verify, cache=cache)
+        self.clips = ClothClipDataset(
+            root, split, verify=verify, cache=cache, split_protocol=split_protocol
+        )
         self.transform = transform
         self.index = [
             (c, t) for c, record in enumerate(self.clips.records)

@@ -11,6 +11,7 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
 from .augment import ClipAugment
 from .clip_dataset import ClothClipDataset, ClothFrameDataset
+from .manifest import SPLIT_PROTOCOLS
 from .spec import check_int
 
 __all__ = ["ClothVideoDataModule"]
@@ -31,6 +32,8 @@ class ClothVideoDataModule(L.LightningDataModule):
         augment: Apply :class:`ClipAugment` to training samples (``None`` = off).
         verify: Check shard checksums when the datasets are opened.
         cache: Keep decoded clips in memory (see :class:`ClothClipDataset`).
+        split_protocol: ``simulation`` (held-out simulations, the default) or ``sequence``
+            (the thesis's sub-sequence split); see :data:`~datasets.manifest.SPLIT_PROTOCOLS`.
     """
 
     def __init__(
@@ -44,8 +47,13 @@ class ClothVideoDataModule(L.LightningDataModule):
         augment: ClipAugment | None = None,
         verify: bool = True,
         cache: bool = False,
+        split_protocol: str = "simulation",
     ):
         super().__init__()
+        if split_protocol not in SPLIT_PROTOCOLS:
+            raise ValueError(
+                f"split_protocol must be one of {SPLIT_PROTOCOLS}, got {split_protocol!r}"
+            )
         eval_mode = mode if eval_mode is None else eval_mode
         for name, value in (("mode", mode), ("eval_mode", eval_mode)):
             if value not in MODES:
@@ -62,6 +70,7 @@ class ClothVideoDataModule(L.LightningDataModule):
         self.eval_mode = eval_mode
         self.mode, self.batch_size, self.num_workers = mode, batch_size, num_workers
         self.augment, self.verify, self.cache = augment, verify, cache
+        self.split_protocol = split_protocol
         self.datasets: dict[str, Dataset] = {}
 
     def _build(self, split: str) -> Dataset:
@@ -69,7 +78,14 @@ class ClothVideoDataModule(L.LightningDataModule):
         cls = ClothClipDataset if mode == "clip" else ClothFrameDataset
         transform = self.augment if split == "train" else None
         parts = [
-            cls(path, split, transform=transform, verify=self.verify, cache=self.cache)
+            cls(
+                path,
+                split,
+                transform=transform,
+                verify=self.verify,
+                cache=self.cache,
+                split_protocol=self.split_protocol,
+            )
             for path in self.data_dirs
         ]
         return parts[0] if len(parts) == 1 else ConcatDataset(parts)

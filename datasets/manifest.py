@@ -20,6 +20,8 @@ import io
 import json
 from pathlib import Path
 
+import numpy as np
+
 from simulator.material import BEND_MULTIPLIERS, class_summary
 from simulator.sequence import atomic_write_bytes
 
@@ -27,7 +29,21 @@ from .plan import SimulationPlan
 from .shards import ShardError, verify_shard
 from .spec import DatasetSpec
 
-__all__ = ["MANIFEST_SCHEMA", "Manifest", "clip_record", "read_json", "write_json"]
+__all__ = [
+    "MANIFEST_SCHEMA", "SPLIT_PROTOCOLS", "Manifest", "clip_record", "read_json", "write_json",
+]  # fmt: skip
+
+SPLIT_PROTOCOLS = ("simulation", "sequence")
+"""How clips are assigned to train/val/test:
+
+* ``simulation`` (default): as generated - whole simulations are held out, so a test clip's
+  cloth, texture, background and wind were never seen in training;
+* ``sequence``: the thesis's protocol (7.6.1, 7.7.1: each simulated sequence "is divided into
+  sub-sequences" that are split 2,106 / 432): per class, the clips of all simulations are
+  pooled and dealt to the splits at random, keeping each class's split sizes. Test clips then
+  share simulations (and so texture, background and wind) with training clips; it measures
+  recognition within a seen simulation, not generalisation to new ones.
+"""
 
 MANIFEST_SCHEMA = 1
 CSV_COLUMNS = (
@@ -156,18 +172,51 @@ class Manifest:
         """File of shard ``name``."""
         return self.root / "shards" / name
 
-    def verify(self, split: str | None = None) -> None:
+    def verify(self, split: str | None = None, *, names: set[str] | None = None) -> None:
         """Check the size and checksum of the shards of ``split`` (all for ``None``).
 
-        Raises :class:`ShardError` naming the first bad shard.
+        ``names`` restricts the check further to those shard files. Raises
+        :class:`ShardError` naming the first bad shard.
         """
         for shard in self.shards:
             if split is not None and shard["split"] != split:
                 continue
+            if names is not None and shard["name"] not in names:
+                continue
             verify_shard(self.shard_path(shard["name"]), shard["sha256"], shard["bytes"])
 
-    def clips_of(self, split: str | None) -> list[dict]:
-        """Clips of one split (``train``, ``val``, ``test``), or all for ``None``."""
+    def clips_of(self, split: str | None, protocol: str = "simulation") -> list[dict]:
+        """Clips of one split (``train``, ``val``, ``test``), or all for ``None``.
+
+        ``protocol`` is one of :data:`SPLIT_PROTOCOLS`; under ``sequence`` the returned
+        records carry their reassigned ``split`` (their ``shard`` is where they are stored).
+        """
         if split is not None and split not in ("train", "val", "test"):
             raise ValueError(f"split must be 'train', 'val', 'test' or None, got {split!r}")
-        return [c for c in self.clips if split is None or c["split"] == split]
+        if protocol not in SPLIT_PROTOCOLS:
+            raise ValueError(f"split_protocol must be one of {SPLIT_PROTOCOLS}, got {protocol!r}")
+        clips = self.clips if protocol == "simulation" else _deal_by_sequence(self.clips)
+        return [c for c in clips if split is None or c["split"] == split]
+
+
+_SEQUENCE_DEAL_STREAM = 0x5E9
+"""Random stream of the ``sequence`` protocol's deal (with the class id)."""
+
+
+def _deal_by_sequence(clips) -> list[dict]:
+    """The ``sequence`` protocol: per class, pooled clips dealt to splits of unchanged sizes.
+
+    The deal is a seeded permutation of the class's clips in key order, so it does not
+    depend on the manifest's order or on the process.
+    """
+    by_class: dict[int, list[dict]] = {}
+    for clip in clips:
+        by_class.setdefault(int(clip["class_id"]), []).append(clip)
+    dealt = []
+    for class_id, members in sorted(by_class.items()):
+        members = sorted(members, key=lambda c: c["key"])
+        splits = sorted(c["split"] for c in members)
+        order = np.random.default_rng([class_id, _SEQUENCE_DEAL_STREAM]).permutation(len(members))
+        dealt += [{**members[i], "split": split} for i, split in zip(order, splits, strict=True)]
+    return sorted(dealt, key=lambda c: c["key"])
+

@@ -85,20 +85,24 @@ def evaluate_simulated(
     out_dir: str | Path,
     *,
     split: str = "test",
+    split_protocol: str = "simulation",
     batch_size: int = 16,
     extra: dict | None = None,
 ) -> dict:
     """Metrics of ``module`` on one split of a generated dataset; writes JSON, MD and PNG.
 
-    ``extra`` entries (e.g. training time and device) are stored in the JSON as they are.
+    ``split_protocol`` must be the one the model was trained under (see
+    :data:`datasets.manifest.SPLIT_PROTOCOLS`). ``extra`` entries (e.g. training time and
+    device) are stored in the JSON as they are.
     """
-    dataset = ClothClipDataset(data_dir, split, verify=True)
+    dataset = ClothClipDataset(data_dir, split, verify=True, split_protocol=split_protocol)
     logits, meta = predict(module, dataset, batch_size=batch_size, desc=f"{split} clips")
     labels = torch.tensor([m["label"] for m in meta])
     result = {
         "method": module.hparams.get("method", ""),
         "data_dir": str(data_dir),
         "split": split,
+        "split_protocol": split_protocol,
         "clips": len(meta),
         **classification_metrics(logits, labels),
         **(extra or {}),
@@ -128,7 +132,7 @@ def evaluate_simulated(
         ])  # fmt: skip
     header = ["method", "clips", "top-1 %", "top-5 %", "stretch %", "bend %", "grid MAE"]
     text = (
-        f"# {Path(data_dir).name}: {split} split\n\n"
+        f"# {Path(data_dir).name}: {split} split ({split_protocol} protocol)\n\n"
         + markdown_table(header, rows)
         + f"\n![confusion matrix](confusion_{split}.png)\n"
     )
@@ -266,8 +270,9 @@ def run(cfg: DictConfig) -> dict:
     results = {}
     if cfg.data_dir is not None:
         results["sim"] = evaluate_simulated(
-            module, cfg.data_dir, out_dir, split=str(cfg.split), batch_size=int(cfg.batch_size)
-        )
+            module, cfg.data_dir, out_dir, split=str(cfg.split),
+            split_protocol=str(cfg.split_protocol), batch_size=int(cfg.batch_size),
+        )  # fmt: skip
     if cfg.real_dir is not None:
         results["real"] = evaluate_real(
             module, cfg.real_dir, out_dir, batch_size=int(cfg.batch_size),

@@ -22,9 +22,11 @@ FAST = [
 ]  # fmt: skip
 
 
-def _compose(config="train", overrides=()):
+def _compose(config="train", overrides=(), hydra=False):
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        return compose(config_name=config, overrides=list(overrides))
+        return compose(
+            config_name=config, overrides=list(overrides), return_hydra_config=hydra
+        )
 
 
 def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
@@ -37,9 +39,15 @@ def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_every_experiment_composes_and_builds_its_model(experiment):
-    cfg = _compose("train", [f"experiment={experiment}", "paths.output_dir=/tmp/x"])
-    assert cfg.run_name == f"{cfg.dataset.name}-{cfg.model.method}"
+    cfg = _compose("train", [f"experiment={experiment}", "paths.output_dir=/tmp/x"], hydra=True)
+    sequence = experiment.endswith("_seq")  # thesis sub-sequence split: a run folder of its own
+    tag = "-seq" if sequence else ""
+    assert cfg.run_name == f"{cfg.dataset.name}{tag}-{cfg.model.method}"
+    assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
+    assert cfg.data.split_protocol == ("sequence" if sequence else "simulation")
     assert cfg.dataset.name.startswith(experiment.split("_")[0])
+    if cfg.model.method == "base2":
+        assert f"/train/{cfg.dataset.name}{tag}-base1/" in cfg.model.net.encoder_checkpoint
     if cfg.model.method == "base2":
         cfg.model.net.encoder_checkpoint = None  # baseline 1 is not trained here
     module = instantiate(cfg.model)

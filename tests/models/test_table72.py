@@ -17,14 +17,18 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     logs = tmp_path / "logs"
     _report(logs, "wind-L1-random-full-s0-cnn_lstm", 0.25)
     _report(logs, "wind-L1-random-full-s0-base1", 0.125)
+    _report(logs, "wind-L1-random-full-s0-seq-cnn_lstm", 0.75)
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{START}\nold table\n{END}\noutro\n")
     out = tmp_path / "table72.md"
     table = main(["--log-dir", str(logs), "--out", str(out), "--readme", str(readme)])
-    wind = next(line for line in table.splitlines() if line.startswith("| wind"))
-    cells = [c.strip() for c in wind.split("|")[1:-1]]
-    assert cells[3:8] == ["full", "432", "12.5 (50)", "-", "25.0 (50)"]
-    assert cells[8:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    wind, wind_seq = [
+        [c.strip() for c in line.split("|")[1:-1]]
+        for line in table.splitlines() if line.startswith("| wind")
+    ]  # fmt: skip
+    assert wind[3:9] == ["full", "held-out sims", "432", "12.5 (50)", "-", "25.0 (50)"]
+    assert wind[9:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    assert wind_seq[4:9] == ["thesis sub-seq.", "432", "-", "-", "75.0 (50)"]
     text = readme.read_text()
     assert "old table" not in text and text.startswith("intro\n") and text.endswith("outro\n")
     assert table in text and out.read_text().endswith(table)

@@ -205,10 +205,19 @@ def test_mass_spring_model_runs_and_differs():
         _run(scene, [10], settings=SimSettings(cloth_model="fem"))
 
 
+GRID_CORNERS = [0, 8, 45, 53]
+"""Softest/stiffest stretch x softest/stiffest bend: where instabilities show first."""
+
+
+@pytest.mark.parametrize(
+    "classes",
+    [GRID_CORNERS, pytest.param(list(range(CLASS_COUNT)), marks=pytest.mark.slow, id="all54")],
+    ids=lambda c: "corners" if c == GRID_CORNERS else None,
+)
 @pytest.mark.parametrize(("name", "extra"), [("wind", {}), ("arm_bend", {"bend_time": 0.4})])
-def test_full_54_class_sweep_is_stable(name, extra):
+def test_class_sweep_is_stable(name, extra, classes):
     scene = _scenario(name, resolution_level=1, settle_time=0.2, **extra)
-    seq = _run(scene, list(range(CLASS_COUNT)), record_time=0.5, seeds=list(range(CLASS_COUNT)))
+    seq = _run(scene, classes, record_time=0.5, seeds=classes)
     assert np.isfinite(seq.pos).all()
     speed = np.linalg.norm(np.diff(seq.pos, axis=1), axis=-1).max() * 30
     assert speed < 20.0, f"max frame-to-frame speed {speed:.1f} m/s"

@@ -1,0 +1,70 @@
+"""Split protocols: held-out simulations (default) vs the thesis's sub-sequence split."""
+
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from datasets.clip_dataset import ClothClipDataset
+from datasets.datamodule import ClothVideoDataModule
+from datasets.manifest import Manifest
+
+SPLITS = ("train", "val", "test")
+
+
+def _manifest(sims_per_class=(3, 1, 2), clips_per_sim=4, classes=(0, 7, 53)) -> Manifest:
+    """Synthetic manifest: per class, sims in train/val/test, several clips each."""
+    clips = []
+    for class_id in classes:
+        s = 0
+        for split, count in zip(SPLITS, sims_per_class, strict=True):
+            for _ in range(count):
+                for k in range(clips_per_sim):
+                    key = f"wind-c{class_id:02d}-s{s:02d}-k{k:02d}"
+                    clips.append({"key": key, "class_id": class_id, "split": split,
+                                  "sim_id": f"c{class_id:02d}-s{s:02d}",
+                                  "shard": f"{split}-unit-0000.tar"})  # fmt: skip
+                s += 1
+    return Manifest(root=Path("."), spec={}, spec_key="", shards=(), clips=tuple(clips))
+
+
+def _sims(clips) -> set[str]:
+    return {c["sim_id"] for c in clips}
+
+
+def test_simulation_protocol_holds_out_whole_simulations():
+    manifest = _manifest()
+    train, test = manifest.clips_of("train"), manifest.clips_of("test")
+    assert not _sims(train) & _sims(test)
+    assert manifest.clips_of("test", "simulation") == test
+
+
+def test_sequence_protocol_keeps_split_sizes_per_class_and_shares_simulations():
+    manifest = _manifest()
+    dealt = {split: manifest.clips_of(split, "sequence") for split in SPLITS}
+    for split in SPLITS:
+        before = Counter(c["class_id"] for c in manifest.clips_of(split))
+        assert Counter(c["class_id"] for c in dealt[split]) == before
+        assert all(c["split"] == split for c in dealt[split])
+    keys = [c["key"] for split in SPLITS for c in dealt[split]]
+    assert sorted(keys) == sorted(c["key"] for c in manifest.clips), "every clip exactly once"
+    assert _sims(dealt["train"]) & _sims(dealt["test"]), "the thesis split mixes simulations"
+    assert manifest.clips_of("test", "sequence") == dealt["test"], "the deal is deterministic"
+    shuffled = Manifest(Path("."), {}, "", (), tuple(reversed(manifest.clips)))
+    assert shuffled.clips_of("test", "sequence") == dealt["test"], "independent of file order"
+
+
+def test_unknown_split_protocol_is_named():
+    with pytest.raises(ValueError, match="split_protocol must be one of"):
+        _manifest().clips_of("test", "by_frame")
+    with pytest.raises(ValueError, match="split_protocol must be one of"):
+        ClothVideoDataModule(".", split_protocol="by_frame")
+
+
+def test_sequence_protocol_reads_clips_from_the_shards_they_live_in(tiny_dataset):
+    test = ClothClipDataset(tiny_dataset, "test", split_protocol="sequence")
+    train = ClothClipDataset(tiny_dataset, "train", split_protocol="sequence")
+    assert len(test) == len(ClothClipDataset(tiny_dataset, "test"))
+    moved = [r for r in test.records if not r["shard"].startswith("test-")]
+    assert moved, "some test clips come from simulations generated as training ones"
+    assert test[0]["video"].shape[0] == 4 and len(train) + len(test) > 0
