@@ -27,7 +27,7 @@ from simulator.material import CLASS_COUNT
 from simulator.rollout import SimSettings
 from simulator.scenario import ScenarioArmBend, ScenarioWind
 
-__all__ = ["MOTIONS", "PRESETS", "DatasetSpec", "SizePreset", "check_int"]
+__all__ = ["MOTIONS", "PRESETS", "DatasetSpec", "SizePreset", "check_int", "physics_key_of"]
 
 MOTIONS = {"wind": ScenarioWind, "arm": ScenarioArmBend}
 """Motion name -> scene class."""
@@ -104,6 +104,18 @@ def _jsonable(value: Any) -> Any:
 def _digest(payload: Any) -> str:
     text = json.dumps(_jsonable(payload), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+PHYSICS_KEYS = (
+    "motion", "scenario", "preset", "classes", "seed", "lead_in", "sim", "physics",
+    "sims_per_unit",
+)  # fmt: skip
+"""The spec entries that decide the simulated meshes (and so the mesh cache folder)."""
+
+
+def physics_key_of(spec_json: dict) -> str:
+    """Mesh-cache key of a spec in its JSON form (e.g. a manifest's ``spec``)."""
+    return _digest({k: spec_json[k] for k in PHYSICS_KEYS})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -206,19 +218,7 @@ class DatasetSpec:
 
     def physics_key(self) -> str:
         """Hash of what decides the simulated meshes (not the rendering)."""
-        spec = self.to_json()
-        keys = (
-            "motion",
-            "scenario",
-            "preset",
-            "classes",
-            "seed",
-            "lead_in",
-            "sim",
-            "physics",
-            "sims_per_unit",
-        )
-        return _digest({k: spec[k] for k in keys})
+        return physics_key_of(self.to_json())
 
     def key(self) -> str:
         """Hash of the whole spec (decides the shards' bytes)."""

@@ -1,12 +1,15 @@
-"""Split protocols: held-out simulations (default) vs the thesis's sub-sequence split."""
+"""Split protocols (held-out simulations vs the thesis's sub-sequences) and the geometry oracle."""
 
+import json
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from datasets.clip_dataset import ClothClipDataset
 from datasets.datamodule import ClothVideoDataModule
+from datasets.geometry_oracle import clip_geometry, oracle_accuracy, run_oracle
 from datasets.manifest import Manifest
 
 SPLITS = ("train", "val", "test")
@@ -22,6 +25,7 @@ def _manifest(sims_per_class=(3, 1, 2), clips_per_sim=4, classes=(0, 7, 53)) -> 
                 for k in range(clips_per_sim):
                     key = f"wind-c{class_id:02d}-s{s:02d}-k{k:02d}"
                     clips.append({"key": key, "class_id": class_id, "split": split,
+                                  "stretch_index": class_id // 9, "bend_index": class_id % 9,
                                   "sim_id": f"c{class_id:02d}-s{s:02d}",
                                   "shard": f"{split}-unit-0000.tar"})  # fmt: skip
                 s += 1
@@ -68,3 +72,35 @@ def test_sequence_protocol_reads_clips_from_the_shards_they_live_in(tiny_dataset
     moved = [r for r in test.records if not r["shard"].startswith("test-")]
     assert moved, "some test clips come from simulations generated as training ones"
     assert test[0]["video"].shape[0] == 4 and len(train) + len(test) > 0
+
+
+def test_geometry_oracle_finds_the_class_whose_shape_is_nearest():
+    manifest = _manifest()
+    rng = np.random.default_rng(0)
+    # Shape = class offset + small per-clip noise: every test clip's neighbour is its class.
+    geometry = {c["key"]: np.float32(c["class_id"] + 0.01 * rng.normal(size=30))
+                for c in manifest.clips}  # fmt: skip
+    result = oracle_accuracy(manifest.clips_of("train"), manifest.clips_of("test"), geometry)
+    assert result == {"clips": 24, "acc": 1.0, "stretch_acc": 1.0, "bend_acc": 1.0,
+                      "same_simulation": 0.0}  # fmt: skip
+    itself = oracle_accuracy(manifest.clips_of("test"), manifest.clips_of("test"), geometry)
+    assert itself["same_simulation"] == 1.0
+
+
+def test_geometry_oracle_reads_the_dataset_meshes(tiny_dataset, tmp_path):
+    manifest = Manifest.load(tiny_dataset)
+    geometry = clip_geometry(manifest, tiny_dataset / "meshes")
+    assert sorted(geometry) == sorted(c["key"] for c in manifest.clips)
+    sizes = {g.shape for g in geometry.values()}
+    assert sizes == {(4 * 256 * 3,)}, "4 frames x 256 vertices x 3"
+    assert all(np.all(g[:3] == 0) for g in geometry.values()), "relative to the first vertex"
+    results = run_oracle(tiny_dataset, tiny_dataset / "meshes", tmp_path)
+    stored = json.loads((tmp_path / f"{tiny_dataset.name}.json").read_text())
+    assert set(stored["results"]) == {"simulation", "sequence"} and stored["results"] == results
+    assert results["simulation"]["same_simulation"] == 0.0
+    assert "| simulation |" in (tmp_path / f"{tiny_dataset.name}.md").read_text()
+
+
+def test_geometry_oracle_names_a_missing_mesh_cache(tiny_dataset, tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"mesh cache .*unit-0000\.npz not found"):
+        clip_geometry(Manifest.load(tiny_dataset), tmp_path)
