@@ -7,6 +7,10 @@
   the tumour (region 0, x < 0) and the normal region (region 1); an embedded tumour of
   adjustable volume ratio (region 0 scaled about its centroid); and a box of surrounding
   tissue (region 2) whose base, shared with the organ's base, rests on bone.
+* :func:`heart`: a biventricular heart for the Table 4.1-style experiment (*thesis* §4.3.1
+  models the left and right ventricles): the union of two ellipsoidal shells, the left
+  ventricle's cavity and the crescent-shaped right-ventricular cavity cut out, truncated
+  at the base (valve) plane z = 0.
 
 gmsh is imported inside the builders only (``simulator`` imports torch and numpy at
 module level). Meshing is deterministic (one thread, fixed options) and results are cached
@@ -26,10 +30,13 @@ from .mesh import MeshError
 from .tetmesh import TetMesh
 
 __all__ = [
+    "HEART_ELLIPSOIDS",
     "REGION_NORMAL",
     "REGION_TISSUE",
     "REGION_TUMOUR_SIDE",
+    "HeartBody",
     "OrganScene",
+    "heart",
     "organ_scene",
     "sphere_in_cube",
 ]
@@ -58,6 +65,28 @@ class OrganScene:
     """Tumour volume over the volume of REGION_TUMOUR_SIDE, from the meshed tets."""
     box_height: float
     """Height of the tissue box [m]."""
+
+
+HEART_ELLIPSOIDS = {
+    "lv_outer": ((0.0, 0.0, 0.0), (0.025, 0.025, 0.065)),
+    "rv_outer": ((0.014, 0.0, 0.0), (0.036, 0.022, 0.05)),
+    "lv_cavity": ((0.0, 0.0, 0.0), (0.016, 0.016, 0.056)),
+    "rv_cavity": ((0.016, 0.0, 0.0), (0.029, 0.016, 0.044)),
+}
+"""Centre and semi-axes [m] of the heart's ellipsoids: left-ventricular wall ~9 mm, right
+free wall ~5 mm, 65 mm base to apex, 75 mm wide (an adult heart's ventricles)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class HeartBody:
+    """Biventricular heart mesh with the surfaces its boundary conditions need."""
+
+    mesh: TetMesh
+    """Ventricle walls, one region."""
+    base_verts: torch.Tensor
+    """Vertices on the base (valve) plane z = 0 (Dirichlet, fixed), int64, (Pb,)."""
+    epicardium_tris: torch.Tensor
+    """Outer surface triangles (no base, no cavity), outward, int64, (S, 3)."""
 
 
 def _gmsh_session():
@@ -302,3 +331,54 @@ def _mesh_organ(semi_axes, base_z, margin, tumour_ratio, size, tissue_factor):
     mesh = TetMesh.from_arrays(pos, tets, region)
     tumour = torch.as_tensor(np.isin(source, list(tumour_tags)))
     return mesh, tumour
+
+
+def _inside_ellipsoid(points: torch.Tensor, name: str, scale: float) -> torch.Tensor:
+    centre, axes = HEART_ELLIPSOIDS[name]
+    q = (points - points.new_tensor(centre)) / (scale * points.new_tensor(axes))
+    return (q * q).sum(-1) <= 1.0
+
+
+@functools.lru_cache(maxsize=4)
+def heart(mesh_size: float = 0.007) -> HeartBody:
+    """Left and right ventricle walls meshed with gmsh (see :data:`HEART_ELLIPSOIDS`).
+
+    Args:
+        mesh_size: target element edge [m], in [1, 20] mm (the walls are 5-9 mm thick).
+    """
+    if not 0.001 <= mesh_size <= 0.02:
+        raise MeshError(f"mesh_size must lie in [0.001, 0.02] m, got {mesh_size}")
+    gmsh = _gmsh_session()
+    try:
+        occ = gmsh.model.occ
+
+        def ellipsoid(name):
+            (cx, cy, cz), (a, b, c) = HEART_ELLIPSOIDS[name]
+            tag = occ.addSphere(0.0, 0.0, 0.0, 1.0)
+            occ.dilate([(3, tag)], 0.0, 0.0, 0.0, a, b, c)
+            occ.translate([(3, tag)], cx, cy, cz)
+            return [(3, tag)]
+
+        # The septum belongs to the left ventricle: the right cavity stops at its wall.
+        rv_cavity, _ = occ.cut(ellipsoid("rv_cavity"), ellipsoid("lv_outer"))
+        walls, _ = occ.fuse(ellipsoid("lv_outer"), ellipsoid("rv_outer"))
+        walls, _ = occ.cut(walls, ellipsoid("lv_cavity") + rv_cavity)
+        above_base = occ.addBox(-0.1, -0.1, 0.0, 0.2, 0.2, 0.1)
+        walls, _ = occ.cut(walls, [(3, above_base)])
+        occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.5 * mesh_size)
+        gmsh.model.mesh.generate(3)
+        pos, tets, region, _ = _collect(gmsh, {tag: 0 for _, tag in walls})
+    finally:
+        gmsh.finalize()
+    mesh = TetMesh.from_arrays(pos, tets, region)
+    x = mesh.vert_pos
+    base = torch.nonzero(x[:, 2].abs() < 1e-9).reshape(-1)
+    tris = mesh.surface_tri_indices
+    centroid = x[tris].mean(1)
+    on_base = (x[tris][..., 2].abs() < 1e-9).all(-1)
+    in_cavity = _inside_ellipsoid(centroid, "lv_cavity", 1.1) | _inside_ellipsoid(
+        centroid, "rv_cavity", 1.1
+    )
+    return HeartBody(mesh, base, tris[~on_base & ~in_cavity])

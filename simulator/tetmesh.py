@@ -92,6 +92,30 @@ class TetMesh:
                 changes[field.name] = value.to(device=device)
         return dataclasses.replace(self, **changes)
 
+    def locate(self, points: torch.Tensor, *, chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor]:
+        """Tet containing each rest-space point and its barycentric weights there.
+
+        A point outside the mesh (e.g. on a curved surface that the facets cut) gets the
+        tet it lies least outside of, with weights that extrapolate linearly.
+
+        Args:
+            points: query points [m], shape (N, 3).
+            chunk: points per batch (memory is chunk x T x 4).
+
+        Returns:
+            ``(tet, weights)``: tet ids, int64 (N,), and weights summing to 1, shape (N, 4).
+        """
+        origin = self.vert_pos[self.tet_indices[:, 0]]  # (T, 3)
+        tets, weights = [], []
+        for part in points.to(self.vert_pos).split(chunk):
+            rel = part[:, None, :] - origin[None]  # (n, T, 3)
+            lam = torch.einsum("tij,ntj->nti", self.tet_rest_inv, rel)
+            bary = torch.cat([1.0 - lam.sum(-1, keepdim=True), lam], -1)  # (n, T, 4)
+            best = bary.amin(-1).argmax(-1)
+            tets.append(best)
+            weights.append(bary[torch.arange(part.shape[0]), best])
+        return torch.cat(tets), torch.cat(weights)
+
     def submesh(self, tet_mask: torch.Tensor) -> tuple[TetMesh, torch.Tensor]:
         """The mesh made of the tets where ``tet_mask`` (T,) holds, and its vertex ids here.
 

@@ -15,7 +15,7 @@ import torch
 
 from ..model import SimControl, SimModel, SimState
 from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
-from .base import IncrementalPotential, bind_energies, with_pins
+from .base import IncrementalPotential, begin_step, bind_energies, with_pins
 
 __all__ = ["IntegratorBackwardEuler", "solve_static"]
 
@@ -36,11 +36,8 @@ class IntegratorBackwardEuler:
         settings: NewtonSettings | None = None,
     ) -> tuple[SimState, StepStats]:
         """Advance every instance by ``dt`` [s]."""
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0 s, got {dt}")
         settings = settings or self.settings
-        energies = bind_energies(model, control, state.pos)
-        step_forces = tuple(f.linearize(model, state, control, energies) for f in model.forces)
+        energies, step_forces = begin_step(model, state, control, dt)
         x_pred = state.pos + dt * state.vel
         objective = IncrementalPotential(model, energies, step_forces, state.pos, x_pred, dt)
         x0 = with_pins(model, x_pred, control)

@@ -9,7 +9,13 @@ import torch
 from ..energies.base import ElementBlocks
 from ..solvers.block_sparse import BlockSparse
 
-__all__ = ["IncrementalPotential", "SimulationDiverged", "bind_energies", "with_pins"]
+__all__ = [
+    "IncrementalPotential",
+    "SimulationDiverged",
+    "begin_step",
+    "bind_energies",
+    "with_pins",
+]
 
 
 class SimulationDiverged(RuntimeError):
@@ -19,6 +25,15 @@ class SimulationDiverged(RuntimeError):
 def bind_energies(model, control, pos: torch.Tensor) -> tuple:
     """The model's energies bound to one step (obstacles, candidate pairs at ``pos``)."""
     return tuple(e.bind(model, control, pos) for e in model.energies)
+
+
+def begin_step(model, state, control, dt: float) -> tuple[tuple, tuple]:
+    """Check ``dt`` [s]; the step's bound energies and forces linearised at ``state``."""
+    if not dt > 0:
+        raise ValueError(f"dt must be > 0 s, got {dt}")
+    energies = bind_energies(model, control, state.pos)
+    step_forces = tuple(f.linearize(model, state, control, energies) for f in model.forces)
+    return energies, step_forces
 
 
 def with_pins(model, pos: torch.Tensor, control) -> torch.Tensor:

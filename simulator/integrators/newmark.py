@@ -25,7 +25,7 @@ import torch
 
 from ..model import SimControl, SimModel, SimState
 from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
-from .base import IncrementalPotential, bind_energies, with_pins
+from .base import IncrementalPotential, begin_step, with_pins
 
 __all__ = ["IntegratorNewmark"]
 
@@ -53,8 +53,9 @@ class IntegratorNewmark:
                 f"(unconditional stability; beta = 0 is explicit), got {beta}"
             )
 
+    @staticmethod
     def acceleration(
-        self, model: SimModel, state: SimState, control: SimControl, energies: tuple, forces: tuple
+        model: SimModel, state: SimState, energies: tuple, forces: tuple
     ) -> torch.Tensor:
         """``M^-1 f(x_n, v_n)`` [m/s²], shape (B, V, 3); zero at pinned vertices."""
         force = -sum(e.gradient(model, state.pos) for e in energies)
@@ -72,15 +73,12 @@ class IntegratorNewmark:
         settings: NewtonSettings | None = None,
     ) -> tuple[SimState, StepStats]:
         """Advance every instance by ``dt`` [s]; the result carries ``acc``."""
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0 s, got {dt}")
         settings = settings or self.settings
         beta, gamma = self.beta, self.gamma
-        energies = bind_energies(model, control, state.pos)
-        step_forces = tuple(f.linearize(model, state, control, energies) for f in model.forces)
+        energies, step_forces = begin_step(model, state, control, dt)
         acc = state.acc
         if acc is None:
-            acc = self.acceleration(model, state, control, energies, step_forces)
+            acc = self.acceleration(model, state, energies, step_forces)
         x_pred = state.pos + dt * state.vel + (0.5 - beta) * dt * dt * acc
         v_pred = state.vel + (1.0 - gamma) * dt * acc
         # v_{n+1} = v_pred + (x - x_pred) / h_v = (x - x_zero) / h_v with h_v = beta h / gamma.

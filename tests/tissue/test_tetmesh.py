@@ -66,6 +66,25 @@ def test_submesh_and_aggregates():
     assert int(agg.max()) + 1 == len(torch.unique(agg)) and 10 <= len(torch.unique(agg)) <= 40
 
 
+def test_locate_reproduces_affine_fields_and_nested_vertices():
+    coarse = TetMesh.box((2, 1, 1), (0.02, 0.01, 0.01))
+    fine = TetMesh.box((4, 2, 2), (0.02, 0.01, 0.01))
+    gen = torch.Generator().manual_seed(0)
+    points = torch.rand(50, 3, generator=gen, dtype=torch.float64) * torch.tensor(
+        [0.02, 0.01, 0.01], dtype=torch.float64
+    )
+    slope = torch.tensor([[1.0], [2.0], [0.5]], dtype=torch.float64)
+    for query in (points, coarse.vert_pos):
+        tet, weights = fine.locate(query)
+        assert bool((weights > -1e-12).all()), "points inside get non-negative weights"
+        got = ((fine.vert_pos @ slope)[fine.tet_indices[tet]] * weights[..., None]).sum(1)
+        torch.testing.assert_close(got, query @ slope)
+    outside = torch.tensor([[0.021, 0.005, 0.005]], dtype=torch.float64)
+    tet, weights = fine.locate(outside)
+    back = (fine.vert_pos[fine.tet_indices[tet]] * weights[..., None]).sum(1)
+    torch.testing.assert_close(back, outside)  # extrapolated linearly
+
+
 def test_sphere_in_cube_regions():
     mesh = sphere_in_cube(0.1, 0.025, 0.02)
     vol = mesh.tet_rest_volume
