@@ -11,13 +11,16 @@ Writes CSV and PNG files to ``--out``:
 
 Synthetic targets: the scene (organ + tissue, see :mod:`simulator.tissue`) is solved with
 the known per-tet moduli; the recovery sees only the target surface and the contact forces
-of the tissue. Run: ``python -m simulator.tools.tissue_tables --out outputs/tissue``.
+of the tissue. The organ model is ``--material linear`` (the small-strain linearisation of
+eq. 3.8, the default: one sparse LU per candidate) or ``--material mooney_rivlin`` (eq. 3.8
+in full, in target and recovery; ~10x slower). ``--ratios`` / ``--tumour-kpa`` pick rows.
+Run: ``python -m simulator.tools.tissue_tables --out outputs/tissue`` or through Hydra,
+``python -m simulator.tools.tissue job=tables`` (:mod:`simulator.tools.tissue`).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import time
 from pathlib import Path
@@ -31,7 +34,14 @@ from simulator.inverse.multiregion import MultiRegionObjective, recover_regions
 from simulator.meshing import REGION_TISSUE, organ_scene, sphere_in_cube
 from simulator.model import SimControl, SimModel, SimState
 from simulator.solvers.newton import NewtonSettings
-from simulator.tissue import OrganForwardModel, organ_energy, organ_load_case, solve_organ_scene
+from simulator.tissue import (
+    MATERIALS,
+    OrganForwardModel,
+    organ_energy,
+    organ_load_case,
+    solve_organ_scene,
+)
+from simulator.tools.outputs import save_png, write_csv
 
 THESIS_T31 = {
     "ratio": [0.022, 0.14, 0.30, 0.49, 0.65, 0.76, 0.85],
@@ -88,13 +98,6 @@ def recover_case(
     }
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
 def _plot(path: Path, x, ours, thesis, xlabel: str, title: str) -> None:
     import matplotlib
 
@@ -116,8 +119,7 @@ def _plot(path: Path, x, ours, thesis, xlabel: str, title: str) -> None:
     ax.set_title(title)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path)
 
 
 def sensitivity_study(
@@ -207,71 +209,152 @@ def _plot_sensitivity(path: Path, rows: list[dict]) -> None:
     axes[1].set_ylabel("|d axis ratio / d relative mu|")
     axes[0].legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Command-line entry point."""
+TABLES = {
+    "t31": {
+        "thesis": THESIS_T31,
+        "stem": "table31",
+        "x": "ratio",
+        "case": lambda ratio: (ratio, 70.0),
+        "xlabel": "tumour-to-region volume ratio",
+        "title": "Table 3.1 (tumour 70 kPa",
+    },
+    "t32": {
+        "thesis": THESIS_T32,
+        "stem": "table32",
+        "x": "tumour_kpa",
+        "case": lambda kpa: (0.64, float(kpa)),
+        "xlabel": "tumour mu [kPa]",
+        "title": "Table 3.2 (ratio 0.64",
+    },
+}
+"""How each table sweeps: the thesis column, its (ratio, tumour kPa) case, plot labels."""
+
+
+def _table(out: Path, name: str, selected: list, kw: dict) -> list[dict]:
+    """Recover the selected rows of one table; write its CSV and PNG."""
+    spec = TABLES[name]
+    thesis = spec["thesis"]
+    keep = [i for i, x in enumerate(thesis[spec["x"]]) if x in selected]
+    rows = []
+    for i in keep:
+        row = recover_case(*spec["case"](thesis[spec["x"]][i]), **kw)
+        for key, values in thesis.items():
+            row[f"thesis_{key}_kpa" if key.endswith("region") else f"thesis_{key}"] = values[i]
+        row["material"] = kw["material"]
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    write_csv(out / f"{spec['stem']}.csv", rows)
+    _plot(
+        out / f"{spec['stem']}.png",
+        [r[spec["x"]] for r in rows],
+        {k: [r[f"{k}_kpa"] for r in rows] for k in ("tumour_region", "normal_region")},
+        {k: [v[i] for i in keep] for k, v in thesis.items()},
+        spec["xlabel"],
+        f"{spec['title']}, {kw['material']})",
+    )
+    return rows
+
+
+def _select(values: list, wanted, field: str) -> list:
+    """The thesis rows to run: all, or those whose value is in ``wanted``."""
+    if wanted is None:
+        return list(values)
+    missing = [w for w in wanted if not any(abs(w - v) < 1e-9 for v in values)]
+    if missing:
+        raise ValueError(f"{field} must be among the thesis rows {values}, got {missing}")
+    return [v for v in values if any(abs(w - v) < 1e-9 for w in wanted)]
+
+
+def run(
+    out: Path,
+    *,
+    tet_target: int = 1500,
+    material: str = "linear",
+    max_iters: int = 40,
+    seed: int = 0,
+    only: tuple[str, ...] = ("t31", "t32", "sens"),
+    ratios: tuple[float, ...] | None = None,
+    tumour_kpa: tuple[float, ...] | None = None,
+    threads: int = 1,
+) -> dict[str, list[dict]]:
+    """Run the selected tables and write their CSV and PNG files into ``out``.
+
+    Args:
+        out: output folder.
+        tet_target: organ tets of the scene meshes.
+        material: organ model in target and recovery, one of ``MATERIALS``: ``linear`` (the
+            small-strain linearisation of eq. 3.8) or ``mooney_rivlin`` (eq. 3.8 in full).
+        max_iters: PSO iterations per recovery.
+        seed: PSO seed.
+        only: which of ``t31``, ``t32``, ``sens`` to run.
+        ratios: Table 3.1 rows to run (thesis ratios), all if ``None``.
+        tumour_kpa: Table 3.2 rows to run (thesis tumour moduli [kPa]), all if ``None``.
+        threads: torch threads.
+
+    Returns:
+        The rows of each table that ran, by name.
+    """
+    unknown = set(only) - {"t31", "t32", "sens"}
+    if unknown:
+        raise ValueError(f"only must name t31, t32 or sens, got {sorted(unknown)}")
+    if material not in MATERIALS:
+        raise ValueError(f"material must be one of {MATERIALS}, got {material!r}")
+    t31 = _select(THESIS_T31["ratio"], ratios, "ratios")
+    t32 = _select(THESIS_T32["tumour_kpa"], tumour_kpa, "tumour_kpa")
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    kw = {"tet_target": tet_target, "material": material, "max_iters": max_iters, "seed": seed}
+    tables: dict[str, list[dict]] = {}
+    try:
+        for name, selected in (("t31", t31), ("t32", t32)):
+            if name in only:
+                tables[name] = _table(out, name, selected, kw)
+        if "sens" in only:
+            start = time.perf_counter()
+            rows = sensitivity_study()
+            write_csv(out / "sensitivity.csv", rows)
+            _plot_sensitivity(out / "sensitivity.png", rows)
+            print(json.dumps({"sensitivity_seconds": time.perf_counter() - start}), flush=True)
+            tables["sens"] = rows
+    finally:
+        torch.set_num_threads(previous)
+    return tables
+
+
+def main(argv: list[str] | None = None) -> dict[str, list[dict]]:
+    """Parse the command line and :func:`run`."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="outputs/tissue")
+    parser.add_argument("--out", type=Path, default=Path("outputs/tissue"))
     parser.add_argument("--tet-target", type=int, default=1500)
-    parser.add_argument("--material", default="linear", choices=["linear", "mooney_rivlin"])
+    parser.add_argument(
+        "--material",
+        default="linear",
+        choices=MATERIALS,
+        help="linear: small-strain linearisation of eq. 3.8 (fast); mooney_rivlin: full eq. 3.8",
+    )
     parser.add_argument("--max-iters", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", default="t31,t32,sens")
+    parser.add_argument("--ratios", type=float, nargs="+", help="Table 3.1 rows (default all)")
+    parser.add_argument("--tumour-kpa", type=float, nargs="+", help="Table 3.2 rows (default all)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    only = set(args.only.split(","))
-    kw = {
-        "tet_target": args.tet_target,
-        "material": args.material,
-        "max_iters": args.max_iters,
-        "seed": args.seed,
-    }
-    if "t31" in only:
-        rows = []
-        for ratio, t_tum, t_norm in zip(*THESIS_T31.values(), strict=True):
-            row = recover_case(ratio, 70.0, **kw)
-            row.update(
-                thesis_ratio=ratio, thesis_tumour_region_kpa=t_tum, thesis_normal_region_kpa=t_norm
-            )
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-        _write_csv(out / "table31.csv", rows)
-        _plot(
-            out / "table31.png",
-            [r["ratio"] for r in rows],
-            {k: [r[f"{k}_kpa"] for r in rows] for k in ("tumour_region", "normal_region")},
-            THESIS_T31,
-            "tumour-to-region volume ratio",
-            "Table 3.1 (tumour 70 kPa)",
-        )
-    if "t32" in only:
-        rows = []
-        for kpa, t_tum, t_norm in zip(*THESIS_T32.values(), strict=True):
-            row = recover_case(0.64, float(kpa), **kw)
-            row.update(thesis_tumour_region_kpa=t_tum, thesis_normal_region_kpa=t_norm)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-        _write_csv(out / "table32.csv", rows)
-        _plot(
-            out / "table32.png",
-            THESIS_T32["tumour_kpa"],
-            {k: [r[f"{k}_kpa"] for r in rows] for k in ("tumour_region", "normal_region")},
-            THESIS_T32,
-            "tumour mu [kPa]",
-            "Table 3.2 (ratio 0.64)",
-        )
-    if "sens" in only:
-        start = time.perf_counter()
-        rows = sensitivity_study()
-        _write_csv(out / "sensitivity.csv", rows)
-        _plot_sensitivity(out / "sensitivity.png", rows)
-        print(json.dumps({"sensitivity_seconds": time.perf_counter() - start}), flush=True)
+    return run(
+        args.out,
+        tet_target=args.tet_target,
+        material=args.material,
+        max_iters=args.max_iters,
+        seed=args.seed,
+        only=tuple(args.only.split(",")),
+        ratios=args.ratios,
+        tumour_kpa=args.tumour_kpa,
+        threads=args.threads,
+    )
 
 
 if __name__ == "__main__":
