@@ -10,8 +10,6 @@ Single-threaded; frame rates are medians of ``--repeats`` runs. The last stdout 
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import json
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import matplotlib.pyplot as plt
 
 from simulator.monocular.benchmark import PAPER_TABLE1, mono_table
 from simulator.sequence import atomic_write_bytes
+from simulator.tools.outputs import save_png, write_csv
 
 
 def markdown(rows: list[dict]) -> str:
@@ -104,35 +103,29 @@ def plot(rows: list[dict], path: Path) -> None:
     ax_err.legend(fontsize=6)
     ax_fps.legend(fontsize=7)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    save_png(fig, path)
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
-    """Run the table and write CSV, Markdown and PNG into ``--out``."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("outputs/monocular"))
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--elements", type=int, nargs="+", default=[256, 576, 1024, 1600])
-    args = parser.parse_args(argv)
-    rows = mono_table(seed=args.seed, elements=tuple(args.elements), repeats=args.repeats)
-    args.out.mkdir(parents=True, exist_ok=True)
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    atomic_write_bytes(args.out / "monocular.csv", buf.getvalue().encode())
+def run(
+    out: Path,
+    *,
+    seed: int = 0,
+    repeats: int = 3,
+    elements: tuple[int, ...] = (256, 576, 1024, 1600),
+) -> list[dict]:
+    """Run the table and write CSV, Markdown and PNG into ``out``."""
+    rows = mono_table(seed=seed, elements=tuple(elements), repeats=repeats)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "monocular.csv", rows)
     text = markdown(rows)
-    atomic_write_bytes(args.out / "monocular.md", text.encode())
-    plot(rows, args.out / "monocular.png")
+    atomic_write_bytes(out / "monocular.md", text.encode())
+    plot(rows, out / "monocular.png")
     print(text)
     head = next(
         r
         for r in rows
-        if r["model"] == "stvk" and r["condition"] == "clean" and r["elements"] == args.elements[-1]
+        if r["model"] == "stvk" and r["condition"] == "clean" and r["elements"] == elements[-1]
     )
     print(
         json.dumps(
@@ -140,6 +133,17 @@ def main(argv: list[str] | None = None) -> list[dict]:
         )
     )
     return rows
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    """Parse the command line and :func:`run`."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("outputs/monocular"))
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--elements", type=int, nargs="+", default=[256, 576, 1024, 1600])
+    args = parser.parse_args(argv)
+    return run(args.out, seed=args.seed, repeats=args.repeats, elements=tuple(args.elements))
 
 
 if __name__ == "__main__":
