@@ -8,8 +8,10 @@ chance, the simulations themselves do not separate the classes; if it is far abo
 the information is lost between mesh and pixels (framing, resolution, textures). It is not a
 bound in either direction (a network can beat 1-NN; pixels can hide what vertices show).
 
-Run under both split protocols (``datasets.manifest.SPLIT_PROTOCOLS``) it also measures how
-much the thesis's sub-sequence split lets test clips be matched to their own simulations::
+The same 1-NN on *pixels* (each clip's mean frame, area-downsampled to 32 x 32 RGB) is the
+opposite reference: it can only match appearance (texture, background, framing). Run under
+both split protocols (``datasets.manifest.SPLIT_PROTOCOLS``) the two show how much the
+thesis's sub-sequence split lets test clips be matched to their own simulations::
 
     python -m datasets.geometry_oracle data/wind-L1-random-full-s0 --out reports/oracle
 
@@ -27,10 +29,14 @@ import torch
 
 from simulator.sequence import MeshSequence, atomic_write_bytes
 
+from .clip_dataset import ClothClipDataset, clip_tensor
 from .manifest import SPLIT_PROTOCOLS, Manifest
 from .spec import physics_key_of
 
-__all__ = ["clip_geometry", "oracle_accuracy", "run_oracle"]
+__all__ = ["clip_geometry", "clip_pixels", "oracle_accuracy", "run_oracle"]
+
+PIXEL_SIZE = 32
+"""Side of the downsampled mean frame of the pixel reference [px]."""
 
 
 def _unit_of(record: dict) -> str:
@@ -63,6 +69,17 @@ def clip_geometry(manifest: Manifest, cache_dir: str | Path) -> dict[str, np.nda
     return out
 
 
+def clip_pixels(manifest: Manifest, size: int = PIXEL_SIZE) -> dict[str, np.ndarray]:
+    """``clip key -> float32 (3 * size * size,)``: the clip's mean frame, area-downsampled."""
+    clips = ClothClipDataset(manifest.root, None, verify=False)
+    out = {}
+    for i, record in enumerate(clips.records):
+        mean = clip_tensor(clips.read(i)[1]).mean(0, keepdim=True)
+        small = torch.nn.functional.interpolate(mean, size=(size, size), mode="area")
+        out[record["key"]] = small.reshape(-1).numpy()
+    return out
+
+
 def oracle_accuracy(train: list[dict], test: list[dict], geometry: dict[str, np.ndarray]) -> dict:
     """1-NN top-1, stretch-factor and bend-factor accuracy of ``test`` against ``train``."""
     x_train = torch.from_numpy(np.stack([geometry[r["key"]] for r in train]))
@@ -84,32 +101,42 @@ def oracle_accuracy(train: list[dict], test: list[dict], geometry: dict[str, np.
 
 
 def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path) -> dict:
-    """The oracle under every split protocol; writes JSON and Markdown, returns the results."""
+    """Both references under every split protocol; writes JSON and Markdown, returns them.
+
+    Returns ``{"geometry" | "pixels": {protocol: accuracies}}``.
+    """
     manifest = Manifest.load(data_dir)
-    geometry = clip_geometry(manifest, cache_dir)
+    features = {"geometry": clip_geometry(manifest, cache_dir), "pixels": clip_pixels(manifest)}
     results = {
-        protocol: oracle_accuracy(
-            manifest.clips_of("train", protocol), manifest.clips_of("test", protocol), geometry
-        )
-        for protocol in SPLIT_PROTOCOLS
+        kind: {
+            protocol: oracle_accuracy(
+                manifest.clips_of("train", protocol), manifest.clips_of("test", protocol), x
+            )
+            for protocol in SPLIT_PROTOCOLS
+        }
+        for kind, x in features.items()
     }
     name = Path(data_dir).name
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    payload = {"data_dir": str(data_dir), "method": "1-NN on simulated vertex positions",
-               "results": results}  # fmt: skip
+    payload = {"data_dir": str(data_dir), "results": results,
+               "features": {"geometry": "simulated vertex positions of the clip's frames",
+                            "pixels": f"mean frame, {PIXEL_SIZE} x {PIXEL_SIZE} RGB"}}  # fmt: skip
     text = json.dumps(payload, indent=1, sort_keys=True, allow_nan=False) + "\n"
     atomic_write_bytes(out / f"{name}.json", text.encode())
     rows = [
-        f"| {p} | {r['clips']} | {100 * r['acc']:.1f} | {100 * r['stretch_acc']:.1f} | "
+        f"| {kind} | {p} | {r['clips']} | {100 * r['acc']:.1f} | {100 * r['stretch_acc']:.1f} | "
         f"{100 * r['bend_acc']:.1f} | {100 * r['same_simulation']:.1f} |"
-        for p, r in results.items()
+        for kind, by_protocol in results.items()
+        for p, r in by_protocol.items()
     ]
     table = "\n".join([
-        f"# Geometry oracle: {name}", "",
-        "1-nearest-neighbour on simulated vertex positions (no pixels), test vs train clips.", "",
-        "| split protocol | test clips | top-1 % | stretch % | bend % | NN from own sim % |",
-        "|---|---|---|---|---|---|", *rows, "",
+        f"# 1-NN references: {name}", "",
+        "1-nearest-neighbour of each test clip among the training clips, on the simulated",
+        "vertex positions (geometry, no pixels) or on the mean frame (pixels, 32 x 32).", "",
+        "| features | split protocol | test clips | top-1 % | stretch % | bend % | "
+        "NN from own sim % |",
+        "|---|---|---|---|---|---|---|", *rows, "",
     ])  # fmt: skip
     atomic_write_bytes(out / f"{name}.md", table.encode())
     return results
@@ -123,10 +150,12 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=Path("reports/oracle"))
     args = parser.parse_args(argv)
     results = run_oracle(args.data_dir, args.mesh_cache, args.out)
-    for protocol, r in results.items():
-        print(f"{protocol:>10}: top-1 {100 * r['acc']:.1f} %, stretch {100 * r['stretch_acc']:.1f}"
-              f" %, bend {100 * r['bend_acc']:.1f} %, NN from own simulation "
-              f"{100 * r['same_simulation']:.1f} %")  # fmt: skip
+    for kind, protocol, r in [(k, p, r) for k, v in results.items() for p, r in v.items()]:
+        print(
+            f"{kind:>8} {protocol:>10}: top-1 {100 * r['acc']:.1f} %, "
+            f"stretch {100 * r['stretch_acc']:.1f} %, bend {100 * r['bend_acc']:.1f} %, "
+            f"NN from own simulation {100 * r['same_simulation']:.1f} %"
+        )
     return results
 
 

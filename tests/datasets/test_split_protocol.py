@@ -9,7 +9,7 @@ import pytest
 
 from datasets.clip_dataset import ClothClipDataset
 from datasets.datamodule import ClothVideoDataModule
-from datasets.geometry_oracle import clip_geometry, oracle_accuracy, run_oracle
+from datasets.geometry_oracle import clip_geometry, clip_pixels, oracle_accuracy, run_oracle
 from datasets.manifest import Manifest
 
 SPLITS = ("train", "val", "test")
@@ -94,11 +94,15 @@ def test_geometry_oracle_reads_the_dataset_meshes(tiny_dataset, tmp_path):
     sizes = {g.shape for g in geometry.values()}
     assert sizes == {(4 * 256 * 3,)}, "4 frames x 256 vertices x 3"
     assert all(np.all(g[:3] == 0) for g in geometry.values()), "relative to the first vertex"
+    pixels = clip_pixels(manifest)
+    assert {p.shape for p in pixels.values()} == {(3 * 32 * 32,)}
+    assert all(0 <= p.min() and p.max() <= 1 for p in pixels.values())
     results = run_oracle(tiny_dataset, tiny_dataset / "meshes", tmp_path)
     stored = json.loads((tmp_path / f"{tiny_dataset.name}.json").read_text())
-    assert set(stored["results"]) == {"simulation", "sequence"} and stored["results"] == results
-    assert results["simulation"]["same_simulation"] == 0.0
-    assert "| simulation |" in (tmp_path / f"{tiny_dataset.name}.md").read_text()
+    assert stored["results"] == results and set(results) == {"geometry", "pixels"}
+    assert all(set(v) == {"simulation", "sequence"} for v in results.values())
+    assert results["geometry"]["simulation"]["same_simulation"] == 0.0
+    assert "| pixels | sequence |" in (tmp_path / f"{tiny_dataset.name}.md").read_text()
 
 
 def test_geometry_oracle_names_a_missing_mesh_cache(tiny_dataset, tmp_path):
