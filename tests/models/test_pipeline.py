@@ -46,9 +46,10 @@ def test_every_experiment_composes_and_builds_its_model(experiment):
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
     assert cfg.data.split_protocol == ("sequence" if sequence else "simulation")
     assert cfg.dataset.name.startswith(experiment.split("_")[0])
-    if cfg.model.method == "base2":
+    if cfg.model.method in ("base2", "cnn_lstm_ft"):  # start from baseline 1's CNN
         assert f"/train/{cfg.dataset.name}{tag}-base1/" in cfg.model.net.encoder_checkpoint
-    if cfg.model.method == "base2":
+        assert cfg.model.net.freeze_encoder == (cfg.model.method == "base2")
+    if cfg.model.method in ("base2", "cnn_lstm_ft"):
         cfg.model.net.encoder_checkpoint = None  # baseline 1 is not trained here
     module = instantiate(cfg.model)
     assert module(torch.rand(1, 2, 3, 64, 64)).shape == (1, 54)
