@@ -96,7 +96,7 @@ def render_table(
         "1.9 % and 9.3 %). Split *held-out sims*: no test clip's simulation (cloth, texture, "
         "background, wind) was seen in training; *thesis sub-seq.*: the thesis's protocol "
         "(7.7.1), each class's clips dealt to the splits regardless of simulation, so test "
-        "clips are later moments of training simulations. Thesis: Table 7.2, same motion, "
+        "clips are other moments of training simulations. Thesis: Table 7.2, same motion, "
         "uniform remeshing, random texture."
     )
     if notes:
