@@ -2,7 +2,8 @@
 
 ``python -m benchmarks.train_bench [--batch 16] [--steps 12] [--device auto]``
 
-Each method of configs/model (CNN+LSTM, baseline 1 on clips' frames, baseline 2) is built
+Each method of configs/model (CNN+LSTM, baseline 1 on clips' frames, baseline 2, CNN+LSTM on
+frame differences) is built
 from its Hydra config with the default encoder and fed synthetic clips of the dataset's
 shape (10 frames, 3 x 112 x 112): a training step is forward + cross-entropy + backward +
 AdamW step (``train`` mode); inference is a no-grad forward (``eval`` mode). Medians over
@@ -25,7 +26,7 @@ from pathlib import Path
 import torch
 
 CONFIGS = str(Path(__file__).resolve().parents[1] / "configs")
-METHODS = ("cnn_lstm", "base1", "base2")
+METHODS = ("cnn_lstm", "base1", "base2", "cnn_lstm_diff")
 
 
 def _build(method: str, encoder: str):

@@ -11,7 +11,11 @@ bound in either direction (a network can beat 1-NN; pixels can hide what vertice
 The same 1-NN on *pixels* (each clip's mean frame, area-downsampled to 32 x 32 RGB) is the
 opposite reference: it can only match appearance (texture, background, framing). Run under
 both split protocols (``datasets.manifest.SPLIT_PROTOCOLS``) the two show how much the
-thesis's sub-sequence split lets test clips be matched to their own simulations::
+thesis's sub-sequence split lets test clips be matched to their own simulations.
+
+The third reference, *motion*, is the same 1-NN on the clip's frame differences (grey,
+``sqrt |frame[t + 1] - frame[t]|``, area-downsampled to 16 x 16 per step): static texture and
+background cancel, the moving cloth remains. It is what the ``cnn_lstm_diff`` model reads::
 
     python -m datasets.geometry_oracle data/wind-L1-random-full-s0 --out reports/oracle
 
@@ -33,10 +37,17 @@ from .clip_dataset import ClothClipDataset, clip_tensor
 from .manifest import SPLIT_PROTOCOLS, Manifest
 from .spec import physics_key_of
 
-__all__ = ["clip_geometry", "clip_pixels", "oracle_accuracy", "run_oracle"]
+__all__ = ["clip_geometry", "clip_motion", "clip_pixels", "oracle_accuracy", "run_oracle"]
 
 PIXEL_SIZE = 32
 """Side of the downsampled mean frame of the pixel reference [px]."""
+MOTION_SIZE = 16
+"""Side of each downsampled frame difference of the motion reference [px]."""
+FEATURES = {
+    "geometry": "simulated vertex positions of the clip's frames",
+    "pixels": f"mean frame, {PIXEL_SIZE} x {PIXEL_SIZE} RGB",
+    "motion": f"sqrt |grey frame difference|, {MOTION_SIZE} x {MOTION_SIZE} per step",
+}
 
 
 def _unit_of(record: dict) -> str:
@@ -69,15 +80,31 @@ def clip_geometry(manifest: Manifest, cache_dir: str | Path) -> dict[str, np.nda
     return out
 
 
+def _clip_features(manifest: Manifest, feature) -> dict[str, np.ndarray]:
+    """``clip key -> float32 feature(frames (T, 3, H, W) in [0, 1]) flattened``."""
+    clips = ClothClipDataset(manifest.root, None, verify=False)
+    return {record["key"]: feature(clip_tensor(clips.read(i)[1])).reshape(-1).numpy()
+            for i, record in enumerate(clips.records)}  # fmt: skip
+
+
 def clip_pixels(manifest: Manifest, size: int = PIXEL_SIZE) -> dict[str, np.ndarray]:
     """``clip key -> float32 (3 * size * size,)``: the clip's mean frame, area-downsampled."""
-    clips = ClothClipDataset(manifest.root, None, verify=False)
-    out = {}
-    for i, record in enumerate(clips.records):
-        mean = clip_tensor(clips.read(i)[1]).mean(0, keepdim=True)
-        small = torch.nn.functional.interpolate(mean, size=(size, size), mode="area")
-        out[record["key"]] = small.reshape(-1).numpy()
-    return out
+
+    def mean_frame(frames: torch.Tensor) -> torch.Tensor:
+        mean = frames.mean(0, keepdim=True)
+        return torch.nn.functional.interpolate(mean, size=(size, size), mode="area")
+
+    return _clip_features(manifest, mean_frame)
+
+
+def clip_motion(manifest: Manifest, size: int = MOTION_SIZE) -> dict[str, np.ndarray]:
+    """``clip key -> float32 ((T - 1) * size * size,)``: sqrt |grey frame differences|."""
+
+    def motion(frames: torch.Tensor) -> torch.Tensor:
+        change = frames.mean(1, keepdim=True).diff(dim=0).abs().sqrt()
+        return torch.nn.functional.interpolate(change, size=(size, size), mode="area")
+
+    return _clip_features(manifest, motion)
 
 
 def oracle_accuracy(train: list[dict], test: list[dict], geometry: dict[str, np.ndarray]) -> dict:
@@ -103,10 +130,11 @@ def oracle_accuracy(train: list[dict], test: list[dict], geometry: dict[str, np.
 def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path) -> dict:
     """Both references under every split protocol; writes JSON and Markdown, returns them.
 
-    Returns ``{"geometry" | "pixels": {protocol: accuracies}}``.
+    Returns ``{"geometry" | "pixels" | "motion": {protocol: accuracies}}``.
     """
     manifest = Manifest.load(data_dir)
-    features = {"geometry": clip_geometry(manifest, cache_dir), "pixels": clip_pixels(manifest)}
+    features = {"geometry": clip_geometry(manifest, cache_dir), "pixels": clip_pixels(manifest),
+                "motion": clip_motion(manifest)}  # fmt: skip
     results = {
         kind: {
             protocol: oracle_accuracy(
@@ -119,9 +147,7 @@ def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path)
     name = Path(data_dir).name
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    payload = {"data_dir": str(data_dir), "results": results,
-               "features": {"geometry": "simulated vertex positions of the clip's frames",
-                            "pixels": f"mean frame, {PIXEL_SIZE} x {PIXEL_SIZE} RGB"}}  # fmt: skip
+    payload = {"data_dir": str(data_dir), "results": results, "features": FEATURES}
     text = json.dumps(payload, indent=1, sort_keys=True, allow_nan=False) + "\n"
     atomic_write_bytes(out / f"{name}.json", text.encode())
     rows = [
@@ -132,8 +158,8 @@ def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path)
     ]
     table = "\n".join([
         f"# 1-NN references: {name}", "",
-        "1-nearest-neighbour of each test clip among the training clips, on the simulated",
-        "vertex positions (geometry, no pixels) or on the mean frame (pixels, 32 x 32).", "",
+        "1-nearest-neighbour of each test clip among the training clips, on:", "",
+        *[f"* {kind}: {text}" for kind, text in FEATURES.items()], "",
         "| features | split protocol | test clips | top-1 % | stretch % | bend % | "
         "NN from own sim % |",
         "|---|---|---|---|---|---|---|", *rows, "",

@@ -24,9 +24,11 @@ METHODS = {
     "base2": "Base-2 (RGB-V)",
     "cnn_lstm": "CNN+LSTM (RGB-V)",
     "cnn_lstm_ft": "CNN+LSTM from Base-1's CNN",
+    "cnn_lstm_diff": "CNN+LSTM on frame differences (Diff-V)",
 }
-"""Our methods (run-name suffix -> column); the last is the thesis's recipe (a CNN trained
-beforehand, fine-tuned with the LSTM) with baseline 1 in place of ImageNet weights."""
+"""Our methods (run-name suffix -> column). ``cnn_lstm_ft`` is the thesis's recipe (a CNN
+trained beforehand, fine-tuned with the LSTM) with baseline 1 in place of ImageNet weights;
+``cnn_lstm_diff`` is our fourth method, the same network reading frame differences."""
 THESIS_METHODS = ("base1", "base2", "cnn_lstm")
 THESIS_TABLE_72 = {
     ("arm", 1): (54.0, 56.8, 62.9),

@@ -10,6 +10,11 @@ All take clips ``(B, T, 3, H, W)`` in [0, 1] and return class logits ``(B, num_c
 * :class:`FramePoolNet` (baseline 1): the encoder plus a linear classifier applied to every
   frame; a clip's logits are the mean of its frames' logits. It also accepts single frames
   ``(B, 3, H, W)``, which is how it is trained ("on all frames").
+
+``CNNLSTMNet(inputs="frame_diff")`` is our fourth method (not in the thesis): the LSTM reads
+the encoder's features of the clip's T - 1 frame differences instead of its T frames, so a
+static texture and background give no signal and only the cloth's motion does (see
+:func:`frame_differences`).
 """
 
 from __future__ import annotations
@@ -24,11 +29,28 @@ from simulator.material import CLASS_COUNT
 
 from .frame_encoder import FrameEncoder
 
-__all__ = ["CNNLSTMNet", "FramePoolNet", "load_encoder_state"]
+__all__ = ["CNNLSTMNet", "FramePoolNet", "frame_differences", "load_encoder_state"]
 
 log = logging.getLogger(__name__)
 
 READOUTS = ("mean", "last")
+INPUTS = ("rgb", "frame_diff")
+"""What the encoder sees: the frames, or the differences of consecutive frames."""
+
+
+def frame_differences(video: torch.Tensor) -> torch.Tensor:
+    """Clips (B, T, 3, H, W) in [0, 1] -> (B, T - 1, 3, H, W) in [0, 1]: signed-sqrt differences.
+
+    ``0.5 + 0.5 sign(d) sqrt(|d|)`` with ``d = frame[t + 1] - frame[t]``: zero motion maps to
+    mid-grey and the square root lifts the small differences of slow cloth against strong
+    texture edges (on the full wind preset, 1-NN on 16 x 16 |d| images of held-out simulations
+    scores 23 % top-1, on sqrt|d| 31 %, on mean frames 3.5 %).
+    """
+    _check_clips(video)
+    if video.shape[1] < 2:
+        raise ValueError(f"frame_diff input needs clips of >= 2 frames, got {video.shape[1]}")
+    d = video[:, 1:] - video[:, :-1]
+    return 0.5 + 0.5 * torch.sign(d) * d.abs().sqrt()
 
 
 def _check_clips(video: torch.Tensor) -> None:
@@ -77,6 +99,7 @@ class CNNLSTMNet(nn.Module):
         readout: ``mean`` of the per-step logits (LRCN) or the ``last`` step's.
         freeze_encoder: Keep the encoder fixed (baseline 2); it also stays in eval mode.
         encoder_checkpoint: Load encoder weights from this checkpoint first (baseline 2).
+        inputs: ``rgb`` (the frames; the thesis) or ``frame_diff`` (:func:`frame_differences`).
     """
 
     def __init__(
@@ -89,10 +112,14 @@ class CNNLSTMNet(nn.Module):
         readout: str = "mean",
         freeze_encoder: bool = False,
         encoder_checkpoint: str | None = None,
+        inputs: str = "rgb",
     ):
         super().__init__()
         if readout not in READOUTS:
             raise ValueError(f"readout must be one of {READOUTS}, got {readout!r}")
+        if inputs not in INPUTS:
+            raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
+        self.inputs = inputs
         for name, value in (("hidden_size", hidden_size), ("num_layers", num_layers),
                             ("num_classes", num_classes)):  # fmt: skip
             if not isinstance(value, int) or value < 1:
@@ -117,6 +144,8 @@ class CNNLSTMNet(nn.Module):
     def forward(self, video: torch.Tensor) -> torch.Tensor:
         """Clips (B, T, 3, H, W) -> logits (B, num_classes)."""
         _check_clips(video)
+        if self.inputs == "frame_diff":
+            video = frame_differences(video)
         if self.freeze_encoder:
             if self.encoder.training:  # trainers may set modes module by module
                 self.encoder.eval()

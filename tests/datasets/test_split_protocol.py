@@ -9,7 +9,13 @@ import pytest
 
 from datasets.clip_dataset import ClothClipDataset
 from datasets.datamodule import ClothVideoDataModule
-from datasets.geometry_oracle import clip_geometry, clip_pixels, oracle_accuracy, run_oracle
+from datasets.geometry_oracle import (
+    clip_geometry,
+    clip_motion,
+    clip_pixels,
+    oracle_accuracy,
+    run_oracle,
+)
 from datasets.manifest import Manifest
 
 SPLITS = ("train", "val", "test")
@@ -97,9 +103,13 @@ def test_geometry_oracle_reads_the_dataset_meshes(tiny_dataset, tmp_path):
     pixels = clip_pixels(manifest)
     assert {p.shape for p in pixels.values()} == {(3 * 32 * 32,)}
     assert all(0 <= p.min() and p.max() <= 1 for p in pixels.values())
+    motion = clip_motion(manifest)
+    assert {m.shape for m in motion.values()} == {(3 * 16 * 16,)}, "3 differences of 4 frames"
+    assert all(0 <= m.min() and m.max() <= 1 for m in motion.values())
+    assert any(m.max() > 0 for m in motion.values()), "the cloth moves"
     results = run_oracle(tiny_dataset, tiny_dataset / "meshes", tmp_path)
     stored = json.loads((tmp_path / f"{tiny_dataset.name}.json").read_text())
-    assert stored["results"] == results and set(results) == {"geometry", "pixels"}
+    assert stored["results"] == results and set(results) == {"geometry", "pixels", "motion"}
     assert all(set(v) == {"simulation", "sequence"} for v in results.values())
     assert results["geometry"]["simulation"]["same_simulation"] == 0.0
     assert "| pixels | sequence |" in (tmp_path / f"{tiny_dataset.name}.md").read_text()

@@ -6,7 +6,12 @@ import pytest
 import torch
 
 from models.components.frame_encoder import ENCODERS, FrameEncoder
-from models.components.video_nets import CNNLSTMNet, FramePoolNet, load_encoder_state
+from models.components.video_nets import (
+    CNNLSTMNet,
+    FramePoolNet,
+    frame_differences,
+    load_encoder_state,
+)
 
 
 def _clips(batch=2, steps=3, size=64, seed=0):
@@ -44,6 +49,27 @@ def test_lstm_readouts_and_order_sensitivity():
         assert not torch.allclose(net(video), net(reversed_video))  # it sees the order
 
 
+def test_frame_differences_values_and_invariance_to_static_content():
+    video = torch.zeros(1, 3, 3, 2, 2)
+    video[:, 1] = 0.25  # +0.25, then -0.25: sqrt lifts both to 0.5 from mid-grey
+    diff = frame_differences(video)
+    assert diff.shape == (1, 2, 3, 2, 2)
+    torch.testing.assert_close(diff[0, 0], torch.full((3, 2, 2), 0.75))
+    torch.testing.assert_close(diff[0, 1], torch.full((3, 2, 2), 0.25))
+    assert diff.min() >= 0 and diff.max() <= 1
+    moving = _clips(steps=4)
+    static = torch.rand(1, 1, 3, 64, 64).clamp(0, 0.5)  # a texture that does not move
+    torch.manual_seed(0)
+    net = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0), hidden_size=8,
+                     inputs="frame_diff").eval()  # fmt: skip
+    still = static.expand(2, 4, 3, 64, 64)
+    brighter = still + 0.3  # another static background: the same (zero) differences
+    torch.testing.assert_close(net(still), net(brighter))
+    assert not torch.allclose(net(moving * 0.5), net(still))
+    with pytest.raises(ValueError, match="frame_diff input needs clips of >= 2 frames"):
+        net(_clips(steps=1))
+
+
 def test_bad_arguments_name_the_field():
     with pytest.raises(ValueError, match="encoder name must be one of"):
         FrameEncoder("vgg99")
@@ -53,6 +79,8 @@ def test_bad_arguments_name_the_field():
         CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), readout="max")
     with pytest.raises(ValueError, match="hidden_size"):
         CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), hidden_size=0)
+    with pytest.raises(ValueError, match="inputs must be one of"):
+        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), inputs="flow")
     with pytest.raises(ValueError, match=r"video must have shape \(B, T, 3, H, W\)"):
         CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25))(torch.rand(2, 3, 32, 32))
 

@@ -18,6 +18,7 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     _report(logs, "wind-L1-random-full-s0-cnn_lstm", 0.25)
     _report(logs, "wind-L1-random-full-s0-base1", 0.125)
     _report(logs, "wind-L1-random-full-s0-seq-cnn_lstm", 0.75)
+    _report(logs, "wind-L1-random-full-s0-cnn_lstm_diff", 0.5)
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{START}\nold table\n{END}\noutro\n")
     out = tmp_path / "table72.md"
@@ -26,9 +27,10 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
         [c.strip() for c in line.split("|")[1:-1]]
         for line in table.splitlines() if line.startswith("| wind")
     ]  # fmt: skip
-    assert wind[3:10] == ["full", "held-out sims", "432", "12.5 (50)", "-", "25.0 (50)", "-"]
-    assert wind[10:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
-    assert wind_seq[4:10] == ["thesis sub-seq.", "432", "-", "-", "75.0 (50)", "-"]
+    assert wind[3:11] == ["full", "held-out sims", "432", "12.5 (50)", "-", "25.0 (50)", "-",
+                          "50.0 (50)"]  # fmt: skip
+    assert wind[11:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    assert wind_seq[4:11] == ["thesis sub-seq.", "432", "-", "-", "75.0 (50)", "-", "-"]
     text = readme.read_text()
     assert "old table" not in text and text.startswith("intro\n") and text.endswith("outro\n")
     assert table in text and out.read_text().endswith(table)
