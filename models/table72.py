@@ -1,11 +1,12 @@
-"""Regenerate the Table 7.2-style comparison (baseline 1, baseline 2, CNN+LSTM) from run folders.
+"""Regenerate the Table 7.2-style comparison (baselines, CNN+LSTM variants) from run folders.
 
 ``python -m models.table72`` reads ``logs/train/<dataset>[-seq]-<method>/eval/sim_test.json``
 of the wind and arm datasets (the runs of ``configs/experiment/*_L1_random_*.yaml``; ``-seq``:
 the thesis's sub-sequence split, ``*_seq.yaml``), writes
 ``reports/table72.md`` and replaces the block between ``<!-- table72:start -->`` and
 ``<!-- table72:end -->`` in README.md. Missing runs show as "-"; the thesis's numbers for the
-same setting (Unif-1 / Rand1) stand beside ours.
+same setting (Unif-1 / Rand1) stand beside ours. ``--arm-preset small,full`` gives a row
+per preset.
 """
 
 from __future__ import annotations
@@ -66,13 +67,13 @@ def _cell(result: dict | None) -> str:
 
 
 def render_table(
-    log_dir: Path, *, level: int, texture: str, presets: dict[str, str], seed: int
+    log_dir: Path, *, level: int, texture: str, presets: dict[str, list[str]], seed: int
 ) -> str:
-    """Markdown: one row per motion, ours (top-1, top-5 in brackets) then the thesis's."""
+    """Markdown: a row per motion, preset and split; ours (top-1, top-5) then the thesis's."""
     rows = []
     notes = set()
     budgets: list[str] = []
-    for motion, preset in presets.items():
+    for motion, preset in [(m, p) for m, names in presets.items() for p in names]:
         thesis = THESIS_TABLE_72.get((motion, level), (None, None, None))
         theirs = ["-" if t is None else f"{t:.1f}" for t in thesis]
         for tag, label in PROTOCOLS.values():
@@ -86,9 +87,8 @@ def render_table(
                     notes.add(f"{result['device']}")
                 if "epochs" in result:
                     minutes = result.get("train_minutes", 0.0)
-                    budgets.append(
-                        f"{motion}{tag} {method} {result['epochs']} epochs / {minutes:.0f} min"
-                    )
+                    budgets.append(f"{motion} {preset}{tag} {method} {result['epochs']} "
+                                   f"epochs / {minutes:.0f} min")  # fmt: skip
     header = ["motion", "mesh", "texture", "preset", "split", "test clips",
               *[f"ours {v}" for v in METHODS.values()],
               *[f"thesis {METHODS[m]}" for m in THESIS_METHODS]]  # fmt: skip
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--log-dir", type=Path, default=Path("logs"))
     parser.add_argument("--level", type=int, default=1)
     parser.add_argument("--texture", default="random")
-    parser.add_argument("--preset", default="full", help="preset of both motions")
+    parser.add_argument("--preset", default="full", help="preset(s) of both motions, a,b")
     parser.add_argument("--wind-preset", default=None, help="overrides --preset for wind")
     parser.add_argument("--arm-preset", default=None, help="overrides --preset for arm")
     parser.add_argument("--seed", type=int, default=0)
@@ -132,8 +132,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--no-readme", action="store_true", help="only write --out")
     args = parser.parse_args(argv)
     presets = {
-        "wind": args.wind_preset or args.preset,
-        "arm": args.arm_preset or args.preset,
+        "wind": (args.wind_preset or args.preset).split(","),
+        "arm": (args.arm_preset or args.preset).split(","),
     }
     table = render_table(
         args.log_dir, level=args.level, texture=args.texture, presets=presets, seed=args.seed

@@ -37,6 +37,22 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     assert "CPU, 2 threads" in table
 
 
+def test_several_presets_give_a_row_each(tmp_path):
+    logs = tmp_path / "logs"
+    _report(logs, "arm-L1-random-small-s0-base1", 0.25)
+    _report(logs, "arm-L1-random-full-s0-cnn_lstm_diff", 0.5)
+    table = main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
+                  "--wind-preset", "full", "--arm-preset", "small,full"])  # fmt: skip
+    arm = [[c.strip() for c in line.split("|")[1:-1]]
+           for line in table.splitlines() if line.startswith("| arm")]  # fmt: skip
+    assert [(row[3], row[4]) for row in arm] == [
+        ("small", "held-out sims"), ("small", "thesis sub-seq."),
+        ("full", "held-out sims"), ("full", "thesis sub-seq."),
+    ]  # fmt: skip
+    assert arm[0][6] == "25.0 (50)" and arm[2][10] == "50.0 (50)"
+    assert "arm full cnn_lstm_diff" not in table  # no epochs recorded: no budget note
+
+
 def test_readme_without_markers_is_refused(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("no block\n")
