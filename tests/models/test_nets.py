@@ -49,6 +49,20 @@ def test_lstm_readouts_and_order_sensitivity():
         assert not torch.allclose(net(video), net(reversed_video))  # it sees the order
 
 
+def test_fc6_norm_keeps_every_fc6_unit_alive():
+    torch.manual_seed(0)
+    frames = torch.rand(32, 3, 64, 64)
+    for fc6_norm in (False, True):
+        encoder = FrameEncoder(feature_dim=16, width=0.25, dropout=0.0, fc6_norm=fc6_norm)
+        with torch.no_grad():
+            linear = encoder.fc6[0]
+            linear.bias.fill_(-10.0)  # what a run of large updates can do to fc6's biases
+            features = encoder.train()(frames)
+        dead = int((features.amax(0) == 0).sum())
+        assert dead == (0 if fc6_norm else 16), fc6_norm
+    assert isinstance(encoder.fc6[1], torch.nn.BatchNorm1d)
+
+
 def test_frame_differences_values_and_invariance_to_static_content():
     video = torch.zeros(1, 3, 3, 2, 2)
     video[:, 1] = 0.25  # +0.25, then -0.25: sqrt lifts both to 0.5 from mid-grey
