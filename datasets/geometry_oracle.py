@@ -15,7 +15,7 @@ thesis's sub-sequence split lets test clips be matched to their own simulations.
 
 The third reference, *motion*, is the same 1-NN on the clip's frame differences (grey,
 ``sqrt |frame[t + 1] - frame[t]|``, area-downsampled to 16 x 16 per step): static texture and
-background cancel, the moving cloth remains. It is what the ``cnn_lstm_diff`` model reads::
+background cancel, the moving cloth remains: the ``cnn_lstm_diff`` model's input, in grey::
 
     python -m datasets.geometry_oracle data/wind-L1-random-full-s0 --out reports/oracle
 
@@ -128,7 +128,7 @@ def oracle_accuracy(train: list[dict], test: list[dict], geometry: dict[str, np.
 
 
 def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path) -> dict:
-    """Both references under every split protocol; writes JSON and Markdown, returns them.
+    """All three references under every split protocol; writes JSON and Markdown, returns them.
 
     Returns ``{"geometry" | "pixels" | "motion": {protocol: accuracies}}``.
     """
