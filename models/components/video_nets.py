@@ -43,8 +43,8 @@ def frame_differences(video: torch.Tensor) -> torch.Tensor:
 
     ``0.5 + 0.5 sign(d) sqrt(|d|)`` with ``d = frame[t + 1] - frame[t]``: zero motion maps to
     mid-grey and the square root lifts the small differences of slow cloth against strong
-    texture edges (on the full wind preset, 1-NN on 16 x 16 |d| images of held-out simulations
-    scores 23 % top-1, on sqrt|d| 31 %, on mean frames 3.5 %).
+    texture edges. On the full wind preset the motion reference of ``datasets.geometry_oracle``
+    (1-NN on 16 x 16 grey sqrt|d|) names 33.1 % of held-out clips' classes, mean frames 3.5 %.
     """
     _check_clips(video)
     if video.shape[1] < 2:
