@@ -49,8 +49,9 @@ def test_every_experiment_composes_and_builds_its_model(experiment):
     if cfg.model.method in ("base2", "cnn_lstm_ft"):  # start from baseline 1's CNN
         assert f"/train/{cfg.dataset.name}{tag}-base1/" in cfg.model.net.encoder_checkpoint
         assert cfg.model.net.freeze_encoder == (cfg.model.method == "base2")
+    assert cfg.model.net.encoder.fc6_norm  # every method: BatchNorm keeps fc6's units alive
     if cfg.model.method == "cnn_lstm_diff":  # frame differences, the cloth's scale kept
-        assert cfg.model.net.inputs == "frame_diff" and cfg.model.net.encoder.fc6_norm
+        assert cfg.model.net.inputs == "frame_diff"
         assert list(cfg.data.augment.crop_scale) == [1.0, 1.0] and cfg.data.augment.flip_prob == 0
     if cfg.model.method in ("base2", "cnn_lstm_ft"):
         cfg.model.net.encoder_checkpoint = None  # baseline 1 is not trained here

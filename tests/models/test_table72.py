@@ -37,19 +37,25 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     assert "CPU, 2 threads" in table
 
 
-def test_several_presets_give_a_row_each(tmp_path):
+def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
     logs = tmp_path / "logs"
     _report(logs, "arm-L1-random-small-s0-base1", 0.25)
+    _report(logs, "arm-L1-random-small-s0-seq-base1", 0.75)
     _report(logs, "arm-L1-random-full-s0-cnn_lstm_diff", 0.5)
+    _report(logs, "arm-L1-grid-full-s0-cnn_lstm_diff", 0.625)
     table = main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
-                  "--wind-preset", "full", "--arm-preset", "small,full"])  # fmt: skip
+                  "--wind-preset", "full", "--arm-preset", "small,full",
+                  "--texture", "random,grid"])  # fmt: skip
     arm = [[c.strip() for c in line.split("|")[1:-1]]
            for line in table.splitlines() if line.startswith("| arm")]  # fmt: skip
-    assert [(row[3], row[4]) for row in arm] == [
-        ("small", "held-out sims"), ("small", "thesis sub-seq."),
-        ("full", "held-out sims"), ("full", "thesis sub-seq."),
+    assert [(row[2], row[3], row[4]) for row in arm] == [
+        ("random", "small", "held-out sims"), ("random", "small", "thesis sub-seq."),
+        ("random", "full", "held-out sims"), ("grid", "full", "held-out sims"),
     ]  # fmt: skip
-    assert arm[0][6] == "25.0 (50)" and arm[2][10] == "50.0 (50)"
+    assert arm[0][6] == "25.0 (50)" and arm[2][10] == "50.0 (50)" and arm[3][10] == "62.5 (50)"
+    assert arm[2][11:] == ["54.0", "56.8", "62.9"] and arm[3][11:] == ["-", "-", "-"]
+    assert "arm random full thesis sub-seq." in table.split("No runs yet:")[1]
+    assert "| wind" not in table and "wind grid full held-out sims" in table
     assert "arm full cnn_lstm_diff" not in table  # no epochs recorded: no budget note
 
 
