@@ -103,7 +103,7 @@ def render_table(
                     notes.add(f"{result['device']}")
                 if "epochs" in result:
                     minutes = result.get("train_minutes", 0.0)
-                    budgets.append(f"{motion} {preset}{tag} {method} {result['epochs']} "
+                    budgets.append(f"{motion} {texture} {preset}{tag} {method} {result['epochs']} "
                                    f"epochs / {minutes:.0f} min")  # fmt: skip
     header = ["motion", "mesh", "texture", "preset", "split", "test clips",
               *[f"ours {v}" for v in METHODS.values()],
@@ -118,7 +118,7 @@ def render_table(
         "uniform remeshing, random texture (it has no Unif-1 row for other textures)."
     )
     if missing:
-        text += " No runs yet: " + "; ".join(missing) + "."
+        text += " No runs yet: " + "; ".join(missing).rstrip(".") + "."
     if notes:
         text += " Trained on: " + "; ".join(sorted(notes)) + "."
     if budgets:
