@@ -79,13 +79,17 @@ def load_encoder_state(encoder: FrameEncoder, checkpoint: str | Path) -> None:
     # Our own checkpoints; they hold plain hyper-parameter dicts besides the tensors.
     raw = torch.load(path, map_location="cpu", weights_only=False)
     state = raw.get("state_dict", raw)
+    wanted = set(encoder.state_dict())
     for prefix in ("net.encoder.", "encoder.", ""):
         picked = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
-        if picked and set(encoder.state_dict()) <= set(picked):
-            encoder.load_state_dict({k: picked[k] for k in encoder.state_dict()})
+        if set(picked) == wanted:  # exactly: a subset would drop e.g. fc6's BatchNorm silently
+            encoder.load_state_dict(picked)
             log.info("encoder weights from %s", path)
             return
-    raise ValueError(f"encoder_checkpoint {path} holds no weights matching this encoder")
+    raise ValueError(
+        f"encoder_checkpoint {path} holds no weights matching this encoder (the encoder config "
+        "must be the one it was trained with, encoder.fc6_norm included)"
+    )
 
 
 class CNNLSTMNet(nn.Module):

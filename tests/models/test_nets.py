@@ -123,6 +123,13 @@ def test_missing_or_foreign_encoder_checkpoint_is_a_clear_error(tmp_path):
     torch.save({"state_dict": {"net.other.weight": torch.zeros(1)}}, tmp_path / "x.ckpt")
     with pytest.raises(ValueError, match="no weights matching"):
         load_encoder_state(encoder, tmp_path / "x.ckpt")
+    for trained, loading in ((False, True), (True, False)):  # fc6_norm differs either way
+        base1 = FramePoolNet(FrameEncoder(feature_dim=8, width=0.25, fc6_norm=trained))
+        state = {f"net.{k}": v for k, v in base1.state_dict().items()}
+        torch.save({"state_dict": state}, tmp_path / "b1.ckpt")
+        other = FrameEncoder(feature_dim=8, width=0.25, fc6_norm=loading)
+        with pytest.raises(ValueError, match="fc6_norm"):
+            load_encoder_state(other, tmp_path / "b1.ckpt")
 
 
 def test_pretrained_weights_only_from_local_files(tmp_path, monkeypatch, caplog):
