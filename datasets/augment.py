@@ -1,18 +1,69 @@
 """Training augmentation applied identically to every frame of a clip.
 
 Only changes a material cannot cause: a random crop-and-resize (framing), a horizontal
-flip (wind from the other side) and small brightness/contrast/saturation changes. Random
-draws use torch's global generator, which Lightning seeds per data-loader worker.
+flip (wind from the other side), small brightness/contrast/saturation changes
+(:class:`ClipAugment`) and a new background behind the cloth (:class:`BackgroundSwap`).
+Random draws use torch's global generator, which Lightning seeds per data-loader worker.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import torch
 from torchvision.transforms.v2 import functional as tvf
 
-__all__ = ["ClipAugment"]
+from render.backgrounds import make_background
+
+__all__ = ["BackgroundSwap", "ClipAugment"]
+
+_SWAP_STREAM = 23
+"""Keeps the swapped-in backgrounds apart from the generator's (seeded by simulation)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class BackgroundSwap:
+    """Re-composite a training clip's cloth over a freshly drawn background.
+
+    Why: every simulation is rendered over its own background, so a network can name a
+    training clip's class from its background alone, and the RGB models do (they fit their
+    training clips and stay at chance on held-out simulations). With a new background for
+    every sample and epoch (one per clip, the same for all its frames, drawn from the same
+    procedural bank as the generator's, :func:`render.backgrounds.make_background`) the
+    background carries no label. Needs the coverage the generator stores
+    (``render.store_coverage``): ``frame' = a * frame + (1 - a) * background`` with ``a``
+    the cloth's coverage, exact wherever ``a`` is 0 or 1 (the silhouette's antialiased
+    pixels keep a trace of the old background).
+    """
+
+    prob: float = 0.0
+    """Chance that a training sample gets a new background; 0 = off."""
+
+    def __post_init__(self):
+        if not 0 <= self.prob <= 1:
+            raise ValueError(f"data.background_swap.prob must be in [0, 1], got {self.prob}")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any sample is ever changed (only then is coverage needed)."""
+        return self.prob > 0
+
+    def __call__(self, video: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
+        """``video`` float (T, 3, H, W) in [0, 1], ``coverage`` uint8 (T, H, W)."""
+        if coverage.shape != (video.shape[0], *video.shape[-2:]):
+            raise ValueError(
+                f"coverage must have shape {(video.shape[0], *video.shape[-2:])}, "
+                f"got {tuple(coverage.shape)}"
+            )
+        if not float(torch.rand(())) < self.prob:
+            return video
+        seed = int(torch.randint(0, 2**62, ()))
+        height, width = video.shape[-2:]
+        background = make_background(np.random.default_rng([seed, _SWAP_STREAM]), width, height)
+        background = torch.from_numpy(background).permute(2, 0, 1).to(video) / 255.0
+        alpha = coverage[:, None].to(video) / 255.0
+        return alpha * video + (1.0 - alpha) * background
 
 
 @dataclasses.dataclass(frozen=True)

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from .augment import BackgroundSwap
 from .manifest import Manifest
 from .shards import ShardError, ShardReader, frames_sha256
 
@@ -50,6 +51,9 @@ class ClothClipDataset(Dataset):
             epochs skip PNG decoding (a full preset is ~0.75 GB per process).
         split_protocol: How clips are assigned to splits, one of
             :data:`~datasets.manifest.SPLIT_PROTOCOLS` (``simulation``: as generated).
+        background_swap: Re-composite each clip over a new background before
+            ``transform`` (:class:`~datasets.augment.BackgroundSwap`); needs a dataset
+            generated with ``render.store_coverage=true``.
     """
 
     def __init__(
@@ -62,6 +66,7 @@ class ClothClipDataset(Dataset):
         check_clips: bool = False,
         cache: bool = False,
         split_protocol: str = "simulation",
+        background_swap: BackgroundSwap | None = None,
     ):
         self.manifest = Manifest.load(root)
         self.split = split
@@ -72,27 +77,62 @@ class ClothClipDataset(Dataset):
             self.manifest.verify(names={r["shard"] for r in self.records})
         self.transform = transform
         self.check_clips = check_clips
+        enabled = background_swap is not None and background_swap.enabled
+        self.background_swap = background_swap if enabled else None
+        if self.background_swap is not None:
+            lacking = [r["key"] for r in self.records if not r.get("coverage", False)]
+            if lacking:
+                raise ValueError(
+                    f"data.background_swap needs each clip's coverage, but {len(lacking)} clips "
+                    f"of {root} (e.g. {lacking[0]}) have none: regenerate the dataset with "
+                    f"render.store_coverage=true, or set data.background_swap.prob=0"
+                )
         self._readers: dict[str, ShardReader] = {}
         self._cache: dict[int, tuple[dict, np.ndarray]] | None = {} if cache else None
+        self._coverage_cache: dict[int, np.ndarray] | None = {} if cache else None
 
     def __len__(self) -> int:
         return len(self.records)
+
+    def _reader(self, record: dict) -> ShardReader:
+        name = record["shard"]
+        reader = self._readers.get(name)
+        if reader is None:
+            reader = self._readers[name] = ShardReader(self.manifest.shard_path(name))
+        return reader
 
     def read(self, index: int) -> tuple[dict, np.ndarray]:
         """Record and uint8 frames (T, H, W, 3) of clip ``index``."""
         if self._cache is not None and index in self._cache:
             return self._cache[index]
         record = self.records[index]
-        name = record["shard"]
-        reader = self._readers.get(name)
-        if reader is None:
-            reader = self._readers[name] = ShardReader(self.manifest.shard_path(name))
+        reader = self._reader(record)
         stored, frames = reader.read(record["key"])
         if self.check_clips and frames_sha256(frames) != record["sha256"]:
             raise ShardError(f"clip {record['key']} in {reader.path} does not match its checksum")
         if self._cache is not None:
             self._cache[index] = (stored, frames)
         return stored, frames
+
+    def read_coverage(self, index: int) -> np.ndarray:
+        """The cloth's coverage uint8 (T, H, W) of clip ``index`` (0 = background only)."""
+        if self._coverage_cache is not None and index in self._coverage_cache:
+            return self._coverage_cache[index]
+        record = self.records[index]
+        reader = self._reader(record)
+        coverage = reader.read_coverage(record["key"], int(record["frame_count"]))
+        if coverage is None:
+            raise ShardError(f"clip {record['key']} in {reader.path} has no coverage stored")
+        if self._coverage_cache is not None:
+            self._coverage_cache[index] = coverage
+        return coverage
+
+    def swapped(self, index: int, video: torch.Tensor, frames: slice = slice(None)):
+        """``video`` (frames ``frames`` of clip ``index``) over a new background, if enabled."""
+        if self.background_swap is None:
+            return video
+        coverage = torch.from_numpy(self.read_coverage(index)[frames])
+        return self.background_swap(video, coverage)
 
     @staticmethod
     def targets(record: dict) -> dict:
@@ -105,7 +145,7 @@ class ClothClipDataset(Dataset):
 
     def __getitem__(self, index: int) -> dict:
         record, frames = self.read(index)
-        video = clip_tensor(frames)
+        video = self.swapped(index, clip_tensor(frames))
         if self.transform is not None:
             video = self.transform(video)
         return {"video": video, **self.targets(record)}
@@ -123,9 +163,15 @@ class ClothFrameDataset(Dataset):
         verify: bool = True,
         cache: bool = False,
         split_protocol: str = "simulation",
+        background_swap: BackgroundSwap | None = None,
     ):
         self.clips = ClothClipDataset(
-            root, split, verify=verify, cache=cache, split_protocol=split_protocol
+            root,
+            split,
+            verify=verify,
+            cache=cache,
+            split_protocol=split_protocol,
+            background_swap=background_swap,
         )
         self.transform = transform
         self.index = [
@@ -139,7 +185,7 @@ class ClothFrameDataset(Dataset):
     def __getitem__(self, index: int) -> dict:
         clip, t = self.index[index]
         record, frames = self.clips.read(clip)
-        image = clip_tensor(frames[t : t + 1])
+        image = self.clips.swapped(clip, clip_tensor(frames[t : t + 1]), slice(t, t + 1))
         if self.transform is not None:
             image = self.transform(image)
         return {"image": image[0], "frame": t, "clip": clip, **ClothClipDataset.targets(record)}

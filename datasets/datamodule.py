@@ -9,7 +9,7 @@ import lightning as L
 import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
-from .augment import ClipAugment
+from .augment import BackgroundSwap, ClipAugment
 from .clip_dataset import ClothClipDataset, ClothFrameDataset
 from .manifest import SPLIT_PROTOCOLS
 from .spec import check_int
@@ -34,6 +34,8 @@ class ClothVideoDataModule(L.LightningDataModule):
         cache: Keep decoded clips in memory (see :class:`ClothClipDataset`).
         split_protocol: ``simulation`` (held-out simulations, the default) or ``sequence``
             (the thesis's sub-sequence split); see :data:`~datasets.manifest.SPLIT_PROTOCOLS`.
+        background_swap: New backgrounds behind the training samples' cloth
+            (:class:`BackgroundSwap`; ``None`` or ``prob=0`` = off).
     """
 
     def __init__(
@@ -48,6 +50,7 @@ class ClothVideoDataModule(L.LightningDataModule):
         verify: bool = True,
         cache: bool = False,
         split_protocol: str = "simulation",
+        background_swap: BackgroundSwap | None = None,
     ):
         super().__init__()
         if split_protocol not in SPLIT_PROTOCOLS:
@@ -71,6 +74,7 @@ class ClothVideoDataModule(L.LightningDataModule):
         self.mode, self.batch_size, self.num_workers = mode, batch_size, num_workers
         self.augment, self.verify, self.cache = augment, verify, cache
         self.split_protocol = split_protocol
+        self.background_swap = background_swap
         self.datasets: dict[str, Dataset] = {}
 
     def _build(self, split: str) -> Dataset:
@@ -85,6 +89,7 @@ class ClothVideoDataModule(L.LightningDataModule):
                 verify=self.verify,
                 cache=self.cache,
                 split_protocol=self.split_protocol,
+                background_swap=self.background_swap if split == "train" else None,
             )
             for path in self.data_dirs
         ]

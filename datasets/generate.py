@@ -49,6 +49,7 @@ def spec_from_config(cfg: DictConfig) -> DatasetSpec:
         visual=VisualEffects.from_dict(_plain(cfg.render.effects)),
         supersample=int(cfg.render.supersample),
         texture_size=int(cfg.texture_size),
+        store_coverage=bool(cfg.render.store_coverage),
         sims_per_unit=int(cfg.sims_per_unit),
         **kwargs,
     )

@@ -86,7 +86,7 @@ def simulate_unit(spec: DatasetSpec, unit: WorkUnit, cache_dir: Path | None) -> 
 
 
 def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[str, list]:
-    """Render every clip of the unit: ``{split: [(key, record, frames), ...]}``."""
+    """Render every clip of the unit: ``{split: [(key, record, frames, coverage), ...]}``."""
     renderer = _renderer(spec)
     capsules = sequence_capsules(seq)
     preset = spec.preset
@@ -105,7 +105,7 @@ def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[st
         for k in range(preset.clips_per_sim):
             start = spec.lead_in_frames + k * preset.frames_per_clip
             stop = start + preset.frames_per_clip
-            frames = renderer.render_clip(
+            frames, coverage = renderer.render_clip(
                 seq.pos[b, start:stop],
                 seq.tri_indices,
                 seq.uv,
@@ -113,10 +113,14 @@ def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[st
                 background,
                 capsules=None if capsules is None else capsules[b, start:stop],
                 rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
+                coverage=True,
             )
+            coverage = coverage if spec.store_coverage else None
             shard = f"{sim.split}-{unit.name}.tar"
-            record = clip_record(spec, sim, k, shard, frames.shape, frames_sha256(frames))
-            out[sim.split].append((record["key"], record, frames))
+            record = clip_record(
+                spec, sim, k, shard, frames.shape, frames_sha256(frames), coverage is not None
+            )
+            out[sim.split].append((record["key"], record, frames, coverage))
     return out
 
 
@@ -141,7 +145,7 @@ def run_unit(
         name = samples[0][1]["shard"]
         info = write_shard(Path(out_dir) / "shards" / name, samples)
         shards.append({"name": name, "split": split, "unit": unit.index, **info})
-        clips.extend(record for _, record, _ in samples)
+        clips.extend(sample[1] for sample in samples)
     index = {"spec_key": spec.key(), "unit": unit.index, "shards": shards, "clips": clips}
     write_json(_unit_path(out_dir, unit), index)
     seconds = time.perf_counter() - start

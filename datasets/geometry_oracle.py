@@ -37,7 +37,9 @@ from .clip_dataset import ClothClipDataset, clip_tensor
 from .manifest import SPLIT_PROTOCOLS, Manifest
 from .spec import physics_key_of
 
-__all__ = ["clip_geometry", "clip_motion", "clip_pixels", "oracle_accuracy", "run_oracle"]
+__all__ = [
+    "clip_geometry", "clip_motion", "clip_pixels", "oracle_accuracy", "run_oracle", "write_report",
+]  # fmt: skip
 
 PIXEL_SIZE = 32
 """Side of the downsampled mean frame of the pixel reference [px]."""
@@ -145,11 +147,7 @@ def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path)
         for kind, x in features.items()
     }
     name = Path(data_dir).name
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     payload = {"data_dir": str(data_dir), "results": results, "features": FEATURES}
-    text = json.dumps(payload, indent=1, sort_keys=True, allow_nan=False) + "\n"
-    atomic_write_bytes(out / f"{name}.json", text.encode())
     rows = [
         f"| {kind} | {p} | {r['clips']} | {100 * r['acc']:.1f} | {100 * r['stretch_acc']:.1f} | "
         f"{100 * r['bend_acc']:.1f} | {100 * r['same_simulation']:.1f} |"
@@ -164,8 +162,17 @@ def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path)
         "NN from own sim % |",
         "|---|---|---|---|---|---|---|", *rows, "",
     ])  # fmt: skip
-    atomic_write_bytes(out / f"{name}.md", table.encode())
+    write_report(out_dir, name, payload, table)
     return results
+
+
+def write_report(out_dir: str | Path, stem: str, payload: dict, markdown: str) -> None:
+    """``<stem>.json`` (``payload``) and ``<stem>.md`` in ``out_dir``, each written atomically."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(payload, indent=1, sort_keys=True, allow_nan=False) + "\n"
+    atomic_write_bytes(out / f"{stem}.json", text.encode())
+    atomic_write_bytes(out / f"{stem}.md", markdown.encode())
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -75,6 +75,7 @@ def clip_record(
     shard: str,
     frames_shape: tuple[int, ...],
     sha256: str,
+    coverage: bool = False,
 ) -> dict:
     """Manifest row of one clip (also stored as the clip's ``.json`` inside its shard)."""
     summary = class_summary(sim.class_id)
@@ -108,6 +109,7 @@ def clip_record(
         "height": int(frames_shape[1]),
         "width": int(frames_shape[2]),
         "sha256": sha256,
+        "coverage": bool(coverage),
     }
 
 

@@ -4,8 +4,11 @@ Why this format: a tar shard is one sequential file per work unit, the layout We
 torchdata and plain ``tar`` all read; PNG is lossless (the round trip is exact, and the
 ``compression`` visual effect stays a deliberate switch instead of a storage artefact) and
 every frame can be opened with any image viewer. A clip with key ``k`` is stored as
-``k.json`` (its manifest record) and ``k.00.png`` ... ``k.09.png``; WebDataset groups the
-files of a sample by the part of the name before the first dot.
+``k.json`` (its manifest record), ``k.00.png`` ... ``k.09.png`` and, when the renderer's
+coverage was kept, ``k.coverage.png``: the cloth's alpha of every frame, grey, the frames
+stacked top to bottom (T * H, W), from which training can re-composite the cloth over other
+backgrounds. WebDataset groups the files of a sample by the part of the name before the
+first dot.
 
 Shards are built in memory and written atomically (temporary file, fsync, rename) with
 fixed tar headers (mtime 0, uid 0), so the same clips give the same bytes and a killed
@@ -29,7 +32,9 @@ from simulator.sequence import atomic_write_bytes
 __all__ = [
     "ShardError",
     "ShardReader",
+    "decode_coverage",
     "decode_frames",
+    "encode_coverage",
     "encode_frames",
     "file_sha256",
     "frames_sha256",
@@ -85,6 +90,29 @@ def decode_frames(pngs: Iterable[bytes]) -> np.ndarray:
     return np.ascontiguousarray(np.stack(frames))
 
 
+def encode_coverage(coverage: np.ndarray) -> bytes:
+    """One grey PNG of a clip's coverage (uint8 (T, H, W)), frames stacked top to bottom."""
+    coverage = np.asarray(coverage)
+    if coverage.dtype != np.uint8 or coverage.ndim != 3:
+        raise ValueError(
+            f"coverage must be uint8 (T, H, W), got {coverage.dtype} {coverage.shape}"
+        )
+    ok, data = cv2.imencode(
+        ".png", np.ascontiguousarray(coverage.reshape(-1, coverage.shape[-1])), _PNG_PARAMS
+    )
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return data.tobytes()
+
+
+def decode_coverage(data: bytes, frame_count: int) -> np.ndarray:
+    """Inverse of :func:`encode_coverage`: uint8 (T, H, W)."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.shape[0] % frame_count:
+        raise ShardError(f"a coverage PNG could not be decoded into {frame_count} frames")
+    return image.reshape(frame_count, -1, image.shape[1])
+
+
 def _tar_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     info = tarfile.TarInfo(name)
     info.size = len(data)
@@ -95,8 +123,11 @@ def _tar_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     tar.addfile(info, io.BytesIO(data))
 
 
-def write_shard(path: str | Path, samples: Iterable[tuple[str, dict, np.ndarray]]) -> dict:
-    """Write clips ``(key, record, frames)`` as one tar shard, atomically.
+def write_shard(path: str | Path, samples: Iterable[tuple]) -> dict:
+    """Write clips as one tar shard, atomically.
+
+    Each sample is ``(key, record, frames)`` or ``(key, record, frames, coverage)`` with
+    ``coverage`` uint8 (T, H, W) or ``None``.
 
     Returns:
         ``{"bytes": size, "sha256": checksum, "clips": count}`` of the written file.
@@ -104,13 +135,21 @@ def write_shard(path: str | Path, samples: Iterable[tuple[str, dict, np.ndarray]
     buffer = io.BytesIO()
     count = 0
     with tarfile.open(fileobj=buffer, mode="w", format=tarfile.USTAR_FORMAT) as tar:
-        for key, record, frames in samples:
+        for key, record, frames, *rest in samples:
             if "." in key or "/" in key:
                 raise ValueError(f"clip key must not contain '.' or '/', got {key!r}")
+            coverage = rest[0] if rest else None
+            if coverage is not None and np.shape(coverage) != np.shape(frames)[:3]:
+                raise ValueError(
+                    f"coverage of clip {key!r} must have shape {np.shape(frames)[:3]}, "
+                    f"got {np.shape(coverage)}"
+                )
             meta = json.dumps(record, sort_keys=True).encode()
             _tar_member(tar, f"{key}.json", meta)
             for t, png in enumerate(encode_frames(frames)):
                 _tar_member(tar, f"{key}.{t:02d}.png", png)
+            if coverage is not None:
+                _tar_member(tar, f"{key}.coverage.png", encode_coverage(coverage))
             count += 1
     data = buffer.getvalue()
     atomic_write_bytes(path, data)
@@ -180,3 +219,11 @@ class ShardReader:
                 raise ShardError(f"shard {self.path} lacks frames {missing[:3]} of clip {key!r}")
             frames = decode_frames(self._read(handle, n) for n in names)
         return record, frames
+
+    def read_coverage(self, key: str, frame_count: int) -> np.ndarray | None:
+        """The clip's coverage (uint8 (T, H, W)), or ``None`` if the shard has none."""
+        name = f"{key}.coverage.png"
+        if name not in self._index():
+            return None
+        with open(self.path, "rb") as handle:
+            return decode_coverage(self._read(handle, name), frame_count)

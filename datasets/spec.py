@@ -139,6 +139,9 @@ class DatasetSpec:
     visual: VisualEffects = dataclasses.field(default_factory=VisualEffects)
     supersample: int = 1
     texture_size: int = 256
+    store_coverage: bool = True
+    """Keep the renderer's cloth coverage (alpha) of every frame in the shards, so that
+    training can swap backgrounds (:class:`datasets.augment.BackgroundSwap`)."""
     sims_per_unit: int = 0
     """Simulations batched into one work unit (one rollout, one set of shards); 0 = all
     classes of one simulation index."""
@@ -172,6 +175,10 @@ class DatasetSpec:
         check_int("supersample", self.supersample)
         check_int("texture_size", self.texture_size, low=8)
         check_int("sims_per_unit", self.sims_per_unit, low=0)
+        if not isinstance(self.store_coverage, bool):
+            raise ValueError(
+                f"render.store_coverage must be true or false, got {self.store_coverage!r}"
+            )
         for name, cls in (
             ("preset", SizePreset),
             ("sim", SimSettings),

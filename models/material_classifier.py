@@ -169,8 +169,9 @@ def load_classifier(
     net_config = copy.deepcopy(hparams.get("net_config"))
     if not net_config:
         raise ValueError(f"checkpoint {path} has no net_config; was it written by train.py?")
-    if "encoder_checkpoint" in net_config:
-        net_config["encoder_checkpoint"] = None  # the encoder weights are in this state dict
+    for key in ("encoder_checkpoint", "motion_encoder_checkpoint"):
+        if key in net_config:
+            net_config[key] = None  # the encoders' weights are in this state dict
     net = instantiate(net_config)
     module = MaterialClassifierModule(
         net,

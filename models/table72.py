@@ -7,7 +7,8 @@ the thesis's sub-sequence split, ``*_seq.yaml``), writes
 ``<!-- table72:end -->`` in README.md. Missing runs show as "-"; the thesis's numbers for the
 same setting (Unif-1 / Rand1) stand beside ours. ``--arm-preset small,full`` gives a row
 per preset, ``--texture random,grid`` a row per texture; a setting without any run is listed
-under the table instead of as an empty row.
+under the table instead of as an empty row. Runs of a training variant
+(``logs/train/<dataset>[-seq]-bgswap-<method>``, ``variant=bgswap``) get rows of their own.
 """
 
 from __future__ import annotations
@@ -27,10 +28,12 @@ METHODS = {
     "cnn_lstm": "CNN+LSTM (RGB-V)",
     "cnn_lstm_ft": "CNN+LSTM from Base-1's CNN",
     "cnn_lstm_diff": "CNN+LSTM on frame differences (Diff-V)",
+    "cnn_lstm_2s": "two-stream CNN+LSTM, frames + differences",
 }
 """Our methods (run-name suffix -> column). ``cnn_lstm_ft`` is the thesis's recipe (a CNN
 trained beforehand, fine-tuned with the LSTM) with baseline 1 in place of ImageNet weights;
-``cnn_lstm_diff`` is our fourth method, the same network reading frame differences."""
+``cnn_lstm_diff`` is our fourth method, the same network reading frame differences;
+``cnn_lstm_2s`` our fifth, both streams (frames and differences) into one LSTM."""
 THESIS_METHODS = ("base1", "base2", "cnn_lstm")
 THESIS_TABLE_72 = {
     ("arm", 1): (54.0, 56.8, 62.9),
@@ -44,6 +47,8 @@ THESIS_TABLE_72 = {
 START, END = "<!-- table72:start -->", "<!-- table72:end -->"
 PROTOCOLS = {"simulation": ("", "held-out sims"), "sequence": ("-seq", "thesis sub-seq.")}
 """Split protocol -> (run-name tag, table label); see ``datasets.manifest.SPLIT_PROTOCOLS``."""
+VARIANTS = {"": "as rendered", "-bgswap": "background swap"}
+"""Training variant run-name tag (``configs/variant/``) -> table label."""
 
 
 def dataset_name(motion: str, level: int, texture: str, preset: str, seed: int) -> str:
@@ -89,15 +94,20 @@ def render_table(
         if texture != "random":
             thesis = (None, None, None)
         theirs = ["-" if t is None else f"{t:.1f}" for t in thesis]
-        for tag, label in PROTOCOLS.values():
+        for (split_tag, label), (variant_tag, variant) in (
+            (p, v) for p in PROTOCOLS.values() for v in VARIANTS.items()
+        ):
+            tag = split_tag + variant_tag
             name = dataset_name(motion, level, texture, preset, seed)
             results = collect(log_dir, name + tag)
             if not results:
-                missing.append(f"{motion} {texture} {preset} {label}")
+                if not variant_tag:
+                    missing.append(f"{motion} {texture} {preset} {label}")
                 continue
             ours = [_cell(results.get(m)) for m in METHODS]
             clips = next(r["clips"] for r in results.values())
-            rows.append([motion, f"Unif-{level}", texture, preset, label, clips, *ours, *theirs])
+            rows.append([motion, f"Unif-{level}", texture, preset, label, variant, clips, *ours,
+                         *theirs])  # fmt: skip
             for method, result in results.items():
                 if result.get("device"):
                     notes.add(f"{result['device']}")
@@ -105,7 +115,7 @@ def render_table(
                     minutes = result.get("train_minutes", 0.0)
                     budgets.append(f"{motion} {texture} {preset}{tag} {method} {result['epochs']} "
                                    f"epochs / {minutes:.0f} min")  # fmt: skip
-    header = ["motion", "mesh", "texture", "preset", "split", "test clips",
+    header = ["motion", "mesh", "texture", "preset", "split", "training", "test clips",
               *[f"ours {v}" for v in METHODS.values()],
               *[f"thesis {METHODS[m]}" for m in THESIS_METHODS]]  # fmt: skip
     text = markdown_table(header, rows)
@@ -114,7 +124,9 @@ def render_table(
         "1.9 % and 9.3 %). Split *held-out sims*: no test clip's simulation (cloth, texture, "
         "background, wind) was seen in training; *thesis sub-seq.*: the thesis's protocol "
         "(7.7.1), each class's clips dealt to the splits regardless of simulation, so test "
-        "clips are other moments of training simulations. Thesis: Table 7.2, same motion, "
+        "clips are other moments of training simulations. Training *background swap*: every "
+        "training clip re-composited over a new background (`variant=bgswap`). Thesis: "
+        "Table 7.2, same motion, "
         "uniform remeshing, random texture (it has no Unif-1 row for other textures)."
     )
     if missing:

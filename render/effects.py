@@ -335,26 +335,45 @@ def apply_image_effects(
     clip: np.ndarray,
     effects: VisualEffects,
     rng: np.random.Generator | Mapping[str, np.random.Generator],
-) -> np.ndarray:
+    coverage: np.ndarray | None = None,
+):
     """Apply the enabled image effects in :data:`IMAGE_EFFECT_ORDER`.
 
     Args:
         clip: Frames, uint8, shape (K, H, W, 3).
         effects: The switches and parameters.
         rng: The clip's Generator, or the streams :func:`effect_streams` made from it.
+        coverage: The cloth's coverage (alpha) of each frame, uint8, shape (K, H, W), or
+            ``None``. When given it goes through the effects that move or spread the image
+            (``frame_rate``, ``defocus_blur``) the same way the frames do, not through the
+            photometric ones, so it stays the cloth's share of every output pixel.
 
     Returns:
-        Frames, uint8, shape (K', H, W, 3) (K' = K unless ``frame_rate`` is on).
+        Frames, uint8, shape (K', H, W, 3) (K' = K unless ``frame_rate`` is on); with
+        ``coverage``, the pair ``(frames, coverage (K', H, W))``.
     """
     clip = _check_clip(clip)
+    cover = None
+    if coverage is not None:
+        coverage = np.asarray(coverage)
+        if coverage.dtype != np.uint8 or coverage.shape != clip.shape[:3]:
+            raise ValueError(
+                f"coverage must be uint8 with shape {clip.shape[:3]}, "
+                f"got {coverage.dtype} {coverage.shape}"
+            )
+        cover = np.repeat(coverage[..., None], 3, axis=-1)
     streams = effect_streams(rng) if isinstance(rng, np.random.Generator) else rng
     if effects.frame_rate:
         clip = resample_frame_rate(clip, effects.frame_rate_ratio, effects.frame_rate_mode)
+        if cover is not None:
+            cover = resample_frame_rate(cover, effects.frame_rate_ratio, effects.frame_rate_mode)
     if effects.defocus_blur:
         radius = streams["defocus_blur"].uniform(
             effects.defocus_radius_min_px, effects.defocus_radius_max_px
         )
         clip = apply_defocus_blur(clip, radius)
+        if cover is not None:
+            cover = apply_defocus_blur(cover, radius)
     if effects.sensor_noise:
         clip = apply_sensor_noise(
             clip,
@@ -367,4 +386,6 @@ def apply_image_effects(
         clip = apply_white_balance(clip, gains)
     if effects.compression:
         clip = apply_jpeg(clip, effects.jpeg_quality)
-    return clip
+    if cover is None:
+        return clip
+    return clip, np.ascontiguousarray(cover[..., 0])

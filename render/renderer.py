@@ -214,7 +214,8 @@ class ClothRenderer:
         *,
         capsules: np.ndarray | None = None,
         rng: np.random.Generator,
-    ) -> np.ndarray:
+        coverage: bool = False,
+    ):
         """Render one clip.
 
         Args:
@@ -228,9 +229,14 @@ class ClothRenderer:
                 with INTER_AREA); ``None`` for black.
             capsules: Arm capsules per frame, rows ``[p0, p1, radius]`` [m], shape (K, C, 7).
             rng: Randomness of the enabled effects (see :func:`render.effects.effect_streams`).
+            coverage: Also return the cloth's (and arm's) coverage of every pixel: the
+                resolved alpha the frame was composited with, 0 = background only, 255 =
+                covered (what lets training swap the background, see
+                :class:`datasets.augment.BackgroundSwap`).
 
         Returns:
-            Frames, uint8 RGB, shape (K, H, W, 3) (K changes only with ``frame_rate``).
+            Frames, uint8 RGB, shape (K, H, W, 3) (K changes only with ``frame_rate``); with
+            ``coverage``, the pair ``(frames, coverage uint8 (K, H, W))``.
         """
         if self._renderer is None:
             raise RuntimeError("ClothRenderer is closed")
@@ -288,6 +294,7 @@ class ClothRenderer:
 
         height, width = self.camera.height, self.camera.width
         frames = np.empty((frame_count, height, width, 3), np.uint8)
+        alphas = np.empty((frame_count, height, width), np.uint8)
         bg = background.astype(np.float32) if background is not None else None
         nodes: dict[str, pyrender.Node | None] = {"cloth": None}
         capsule_nodes: list[tuple[pyrender.Node, tuple[float, float]]] = []
@@ -316,13 +323,14 @@ class ClothRenderer:
                 # MSAA resolve averages with the transparent clear colour: rgb is premultiplied.
                 out = rgba[..., :3] if bg is None else rgba[..., :3] + (1.0 - alpha) * bg
                 frames[k] = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+                alphas[k] = np.clip(np.rint(rgba[..., 3]), 0, 255).astype(np.uint8)
         finally:
             if nodes["cloth"] is not None:
                 self._scene.remove_node(nodes["cloth"])
             for node, _ in capsule_nodes:
                 self._scene.remove_node(node)
             self._scene.set_pose(self._camera_node, self._camera_pose)
-        return apply_image_effects(frames, effects, streams)
+        return apply_image_effects(frames, effects, streams, alphas if coverage else None)
 
     def render_sequence(
         self,

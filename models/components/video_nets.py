@@ -14,7 +14,12 @@ All take clips ``(B, T, 3, H, W)`` in [0, 1] and return class logits ``(B, num_c
 ``CNNLSTMNet(inputs="frame_diff")`` is our fourth method (not in the thesis): the LSTM reads
 the encoder's features of the clip's T - 1 frame differences instead of its T frames, so a
 static texture and background give no signal and only the cloth's motion does (see
-:func:`frame_differences`).
+:func:`frame_differences`). ``inputs="two_stream"`` (our fifth) gives the LSTM both: at every
+step the ``encoder``'s features of frame t + 1 (the cloth's shape, what a per-frame CNN
+reads) beside a second ``motion_encoder``'s features of the difference t -> t + 1 (its
+motion), the two streams of Simonyan and Zisserman (2014) with frame differences standing in
+for optical flow. On the simulated meshes both carry class information that the other lacks
+(``python -m datasets.feature_probe``).
 """
 
 from __future__ import annotations
@@ -34,8 +39,9 @@ __all__ = ["CNNLSTMNet", "FramePoolNet", "frame_differences", "load_encoder_stat
 log = logging.getLogger(__name__)
 
 READOUTS = ("mean", "last")
-INPUTS = ("rgb", "frame_diff")
-"""What the encoder sees: the frames, or the differences of consecutive frames."""
+INPUTS = ("rgb", "frame_diff", "two_stream")
+"""What the encoder sees: the frames, the differences of consecutive frames, or both (the
+frames through ``encoder``, the differences through ``motion_encoder``)."""
 
 
 def frame_differences(video: torch.Tensor) -> torch.Tensor:
@@ -103,7 +109,12 @@ class CNNLSTMNet(nn.Module):
         readout: ``mean`` of the per-step logits (LRCN) or the ``last`` step's.
         freeze_encoder: Keep the encoder fixed (baseline 2); it also stays in eval mode.
         encoder_checkpoint: Load encoder weights from this checkpoint first (baseline 2).
-        inputs: ``rgb`` (the frames; the thesis) or ``frame_diff`` (:func:`frame_differences`).
+        inputs: ``rgb`` (the frames; the thesis), ``frame_diff`` (:func:`frame_differences`)
+            or ``two_stream`` (frames 2..T through ``encoder`` beside their differences
+            through ``motion_encoder``, features concatenated per step).
+        motion_encoder: The difference stream's encoder (``two_stream`` only).
+        motion_encoder_checkpoint: Load ``motion_encoder``'s weights from this checkpoint
+            first (e.g. a ``frame_diff`` model's); ``freeze_encoder`` does not freeze it.
     """
 
     def __init__(
@@ -117,12 +128,21 @@ class CNNLSTMNet(nn.Module):
         freeze_encoder: bool = False,
         encoder_checkpoint: str | None = None,
         inputs: str = "rgb",
+        motion_encoder: FrameEncoder | None = None,
+        motion_encoder_checkpoint: str | None = None,
     ):
         super().__init__()
         if readout not in READOUTS:
             raise ValueError(f"readout must be one of {READOUTS}, got {readout!r}")
         if inputs not in INPUTS:
             raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
+        if (inputs == "two_stream") != (motion_encoder is not None):
+            raise ValueError(
+                "motion_encoder is needed by inputs='two_stream' and only by it "
+                f"(inputs={inputs!r}, motion_encoder {'given' if motion_encoder else 'None'})"
+            )
+        if motion_encoder_checkpoint and motion_encoder is None:
+            raise ValueError("motion_encoder_checkpoint needs a motion_encoder")
         self.inputs = inputs
         for name, value in (("hidden_size", hidden_size), ("num_layers", num_layers),
                             ("num_classes", num_classes)):  # fmt: skip
@@ -134,7 +154,11 @@ class CNNLSTMNet(nn.Module):
         self.freeze_encoder = freeze_encoder
         if freeze_encoder:
             encoder.requires_grad_(False)
-        self.lstm = nn.LSTM(encoder.feature_dim, hidden_size, num_layers, batch_first=True)
+        self.motion_encoder = motion_encoder
+        if motion_encoder_checkpoint:
+            load_encoder_state(motion_encoder, motion_encoder_checkpoint)
+        width = encoder.feature_dim + (motion_encoder.feature_dim if motion_encoder else 0)
+        self.lstm = nn.LSTM(width, hidden_size, num_layers, batch_first=True)
         self.classifier = nn.Linear(hidden_size, num_classes)
         self.readout = readout
 
@@ -148,8 +172,12 @@ class CNNLSTMNet(nn.Module):
     def forward(self, video: torch.Tensor) -> torch.Tensor:
         """Clips (B, T, 3, H, W) -> logits (B, num_classes)."""
         _check_clips(video)
+        motion = None
         if self.inputs == "frame_diff":
             video = frame_differences(video)
+        elif self.inputs == "two_stream":
+            motion = _encode_frames(self.motion_encoder, frame_differences(video))
+            video = video[:, 1:]  # frame t + 1 beside the difference t -> t + 1
         if self.freeze_encoder:
             if self.encoder.training:  # trainers may set modes module by module
                 self.encoder.eval()
@@ -157,6 +185,8 @@ class CNNLSTMNet(nn.Module):
                 features = _encode_frames(self.encoder, video)
         else:
             features = _encode_frames(self.encoder, video)
+        if motion is not None:
+            features = torch.cat([features, motion], dim=-1)
         hidden, _ = self.lstm(features)
         if self.readout == "last":
             return self.classifier(hidden[:, -1])

@@ -6,7 +6,9 @@ import pytest
 from datasets.shards import (
     ShardError,
     ShardReader,
+    decode_coverage,
     decode_frames,
+    encode_coverage,
     encode_frames,
     frames_sha256,
     verify_shard,
@@ -64,3 +66,20 @@ def test_bad_keys_and_frames_are_refused(tmp_path):
     with pytest.raises(ValueError, match="uint8"):
         encode_frames(np.zeros((1, 4, 4, 3), np.float32))
     assert not (tmp_path / "x.tar").exists()
+
+
+def test_coverage_round_trips_and_is_optional_per_clip(tmp_path):
+    clip = _clip(3)
+    cover = np.random.default_rng(4).integers(0, 256, size=clip.shape[:3], dtype=np.uint8)
+    assert np.array_equal(decode_coverage(encode_coverage(cover), len(cover)), cover)
+    samples = [("with", {"frame_count": 3}, clip, cover), ("without", {"frame_count": 3}, clip)]
+    write_shard(tmp_path / "a.tar", samples)
+    reader = ShardReader(tmp_path / "a.tar")
+    assert reader.keys() == ["with", "without"]
+    assert np.array_equal(reader.read_coverage("with", 3), cover)
+    assert reader.read_coverage("without", 3) is None
+    assert np.array_equal(reader.read("with")[1], clip)
+    with pytest.raises(ValueError, match="coverage of clip 'bad'"):
+        write_shard(tmp_path / "b.tar", [("bad", {"frame_count": 3}, clip, cover[:2])])
+    with pytest.raises(ValueError, match="coverage must be uint8"):
+        encode_coverage(cover.astype(np.float32))

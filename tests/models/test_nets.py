@@ -84,6 +84,45 @@ def test_frame_differences_values_and_invariance_to_static_content():
         net(_clips(steps=1))
 
 
+def test_two_stream_reads_frames_and_differences_from_their_own_checkpoints(tmp_path):
+    torch.manual_seed(0)
+    base1 = FramePoolNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0))
+    diff = CNNLSTMNet(FrameEncoder(feature_dim=6, width=0.25, dropout=0.0), hidden_size=8,
+                      inputs="frame_diff")  # fmt: skip
+    paths = {}
+    for name, net in (("base1", base1), ("diff", diff)):
+        paths[name] = tmp_path / f"{name}.ckpt"
+        torch.save({"state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}},
+                   paths[name])  # fmt: skip
+    torch.manual_seed(1)
+    net = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0), hidden_size=8,
+                     inputs="two_stream", encoder_checkpoint=str(paths["base1"]),
+                     motion_encoder=FrameEncoder(feature_dim=6, width=0.25, dropout=0.0),
+                     motion_encoder_checkpoint=str(paths["diff"])).eval()  # fmt: skip
+    assert net.lstm.input_size == 8 + 6
+    for mine, theirs in ((net.encoder, base1.encoder), (net.motion_encoder, diff.encoder)):
+        for key, value in theirs.state_dict().items():
+            torch.testing.assert_close(mine.state_dict()[key], value, msg=key)
+    video = _clips(steps=4).requires_grad_(True)
+    logits = net(video)
+    assert logits.shape == (2, 54)
+    logits.sum().backward()
+    assert all(p.grad is not None for p in net.motion_encoder.parameters() if p.requires_grad)
+    # The RGB stream reads frames 2..T; a change of frame 1 alone reaches only the differences.
+    with torch.no_grad():
+        features = net.encoder(video[:, 1:].flatten(0, 1)).view(2, 3, -1)
+        moved = video.detach().clone()
+        moved[:, 0] = 1 - moved[:, 0]
+        assert not torch.allclose(net(moved), net(video))
+        torch.testing.assert_close(net.encoder(moved[:, 1:].flatten(0, 1)).view(2, 3, -1),
+                                   features)  # fmt: skip
+    with pytest.raises(ValueError, match="motion_encoder is needed"):
+        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), inputs="two_stream")
+    with pytest.raises(ValueError, match="motion_encoder is needed"):
+        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25),
+                   motion_encoder=FrameEncoder(feature_dim=4, width=0.25))  # fmt: skip
+
+
 def test_bad_arguments_name_the_field():
     with pytest.raises(ValueError, match="encoder name must be one of"):
         FrameEncoder("vgg99")

@@ -41,22 +41,39 @@ def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
 def test_every_experiment_composes_and_builds_its_model(experiment):
     cfg = _compose("train", [f"experiment={experiment}", "paths.output_dir=/tmp/x"], hydra=True)
     sequence = experiment.endswith("_seq")  # thesis sub-sequence split: a run folder of its own
-    tag = "-seq" if sequence else ""
+    swap = experiment.endswith("_2s")  # the two-stream model trains with background swap
+    tag = "-seq" if sequence else "-bgswap" if swap else ""
     assert cfg.run_name == f"{cfg.dataset.name}{tag}-{cfg.model.method}"
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
     assert cfg.data.split_protocol == ("sequence" if sequence else "simulation")
     assert cfg.dataset.name.startswith(experiment.split("_")[0])
-    if cfg.model.method in ("base2", "cnn_lstm_ft"):  # start from baseline 1's CNN
+    if cfg.model.method in ("base2", "cnn_lstm_ft", "cnn_lstm_2s"):  # baseline 1's CNN first
         assert f"/train/{cfg.dataset.name}{tag}-base1/" in cfg.model.net.encoder_checkpoint
         assert cfg.model.net.freeze_encoder == (cfg.model.method == "base2")
+    if cfg.model.method == "cnn_lstm_2s":  # its motion stream starts from the Diff-V run's CNN
+        assert cfg.model.net.inputs == "two_stream" and cfg.model.net.motion_encoder.fc6_norm
+        motion = cfg.model.net.motion_encoder_checkpoint
+        assert f"/train/{cfg.dataset.name}-cnn_lstm_diff/" in motion
+        cfg.model.net.motion_encoder_checkpoint = None
     assert cfg.model.net.encoder.fc6_norm  # every method: BatchNorm keeps fc6's units alive
-    if cfg.model.method == "cnn_lstm_diff":  # frame differences, the cloth's scale kept
-        assert cfg.model.net.inputs == "frame_diff"
+    assert cfg.data.background_swap.prob == (1.0 if swap else 0.0)  # or variant=bgswap
+    if cfg.model.method in ("cnn_lstm_diff", "cnn_lstm_2s"):  # differences: cloth scale kept
+        assert cfg.model.net.inputs in ("frame_diff", "two_stream")
         assert list(cfg.data.augment.crop_scale) == [1.0, 1.0] and cfg.data.augment.flip_prob == 0
-    if cfg.model.method in ("base2", "cnn_lstm_ft"):
+    if cfg.model.method in ("base2", "cnn_lstm_ft", "cnn_lstm_2s"):
         cfg.model.net.encoder_checkpoint = None  # baseline 1 is not trained here
     module = instantiate(cfg.model)
     assert module(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
+
+
+@pytest.mark.parametrize("experiment", ["wind_L1_random_base2", "arm_L1_random_cnn_lstm_ft"])
+def test_background_swap_variant_has_runs_of_its_own(experiment):
+    cfg = _compose("train", [f"experiment={experiment}", "variant=bgswap",
+                             "paths.output_dir=/tmp/x"], hydra=True)  # fmt: skip
+    assert cfg.run_name == f"{cfg.dataset.name}-bgswap-{cfg.model.method}"
+    assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
+    assert f"/train/{cfg.dataset.name}-bgswap-base1/" in cfg.model.net.encoder_checkpoint
+    assert instantiate(cfg.data.background_swap).prob == 1.0
 
 
 def test_unknown_model_or_encoder_names_fail_clearly():
@@ -132,6 +149,15 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     )
     for key, value in b1.net.encoder.state_dict().items():
         torch.testing.assert_close(b2.net.encoder.state_dict()[key], value, msg=key)
+
+    # The two-stream model, trained over swapped backgrounds, rebuilds from its checkpoint.
+    two = logs / "train" / "tiny-cnn_lstm_2s"
+    cfg3 = _train_cfg(model_dataset, two, "model=cnn_lstm_2s", encoder,
+                      f"model.net.motion_encoder_checkpoint={best}",
+                      "data.background_swap.prob=1.0", log_dir=logs)  # fmt: skip
+    assert 0.0 <= train_entry.train(cfg3)["test/acc"] <= 1.0
+    rebuilt = load_classifier(two / "checkpoints" / "best.ckpt")
+    assert rebuilt.net.inputs == "two_stream" and rebuilt(clip).shape == (2, 54)
 
     # The evaluation entry on the simulated test split and on real videos.
     out = tmp_path / "eval"

@@ -19,18 +19,22 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     _report(logs, "wind-L1-random-full-s0-base1", 0.125)
     _report(logs, "wind-L1-random-full-s0-seq-cnn_lstm", 0.75)
     _report(logs, "wind-L1-random-full-s0-cnn_lstm_diff", 0.5)
+    _report(logs, "wind-L1-random-full-s0-bgswap-cnn_lstm", 0.375)
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{START}\nold table\n{END}\noutro\n")
     out = tmp_path / "table72.md"
     table = main(["--log-dir", str(logs), "--out", str(out), "--readme", str(readme)])
-    wind, wind_seq = [
+    wind, wind_swap, wind_seq = [
         [c.strip() for c in line.split("|")[1:-1]]
         for line in table.splitlines() if line.startswith("| wind")
     ]  # fmt: skip
-    assert wind[3:11] == ["full", "held-out sims", "432", "12.5 (50)", "-", "25.0 (50)", "-",
-                          "50.0 (50)"]  # fmt: skip
-    assert wind[11:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
-    assert wind_seq[4:11] == ["thesis sub-seq.", "432", "-", "-", "75.0 (50)", "-", "-"]
+    assert wind[3:12] == ["full", "held-out sims", "as rendered", "432", "12.5 (50)", "-",
+                          "25.0 (50)", "-", "50.0 (50)"]  # fmt: skip
+    assert wind[12:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    assert wind_swap[4:12] == ["held-out sims", "background swap", "432", "-", "-",
+                               "37.5 (50)", "-", "-"]  # fmt: skip
+    assert wind_seq[4:12] == ["thesis sub-seq.", "as rendered", "432", "-", "-", "75.0 (50)",
+                              "-", "-"]  # fmt: skip
     text = readme.read_text()
     assert "old table" not in text and text.startswith("intro\n") and text.endswith("outro\n")
     assert table in text and out.read_text().endswith(table)
@@ -52,8 +56,9 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
         ("random", "small", "held-out sims"), ("random", "small", "thesis sub-seq."),
         ("random", "full", "held-out sims"), ("grid", "full", "held-out sims"),
     ]  # fmt: skip
-    assert arm[0][6] == "25.0 (50)" and arm[2][10] == "50.0 (50)" and arm[3][10] == "62.5 (50)"
-    assert arm[2][11:] == ["54.0", "56.8", "62.9"] and arm[3][11:] == ["-", "-", "-"]
+    assert arm[0][7] == "25.0 (50)" and arm[2][11] == "50.0 (50)" and arm[3][11] == "62.5 (50)"
+    assert arm[2][12:] == ["54.0", "56.8", "62.9"] and arm[3][12:] == ["-", "-", "-"]
+    assert "bgswap" not in table.split("No runs yet:")[1]  # variants are not listed as missing
     assert "arm random full thesis sub-seq." in table.split("No runs yet:")[1]
     assert "| wind" not in table and "wind grid full held-out sims" in table
     assert "arm full cnn_lstm_diff" not in table  # no epochs recorded: no budget note

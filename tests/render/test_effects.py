@@ -136,3 +136,21 @@ def test_shake_offsets_amplitude_and_smoothness():
 def test_image_effects_reject_non_uint8():
     with pytest.raises(ValueError, match="uint8"):
         apply_image_effects(np.zeros((2, 4, 4, 3)), VisualEffects(), np.random.default_rng(0))
+
+
+def test_coverage_follows_the_geometric_effects_only(clip):
+    cover = np.where(clip[..., 0] > 128, 255, 0).astype(np.uint8)
+    as_rgb = np.repeat(cover[..., None], 3, axis=-1)
+    for name in IMAGE_EFFECT_ORDER:
+        effects = VisualEffects(**{name: True})
+        out, moved = apply_image_effects(clip, effects, np.random.default_rng(1), cover)
+        alone = apply_image_effects(clip, effects, np.random.default_rng(1))
+        np.testing.assert_array_equal(out, alone)
+        if name in ("frame_rate", "defocus_blur"):  # same resampling / same drawn radius
+            expected = apply_image_effects(as_rgb, effects, np.random.default_rng(1))[..., 0]
+            assert not np.array_equal(moved, cover[: len(moved)]), name
+            np.testing.assert_array_equal(moved, expected)
+        else:
+            np.testing.assert_array_equal(moved, cover)
+    with pytest.raises(ValueError, match="coverage"):
+        apply_image_effects(clip, VisualEffects(), np.random.default_rng(1), cover[:2])

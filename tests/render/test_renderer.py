@@ -210,6 +210,23 @@ def test_input_validation(renderer, cloth):
     np.testing.assert_array_equal(black[0, 0], [0, 0, 0])
 
 
+def test_coverage_is_the_alpha_each_frame_was_composited_with(renderer, cloth):
+    pos, tri, uv = cloth
+    clip = np.stack([pos, pos + np.array([0.05, 0.0, 0.0])])
+    frames, cover = renderer.render_clip(clip, tri, uv, WHITE, _background(), rng=_rng(),
+                                         coverage=True)  # fmt: skip
+    np.testing.assert_array_equal(frames, renderer.render_clip(clip, tri, uv, WHITE, _background(),
+                                                               rng=_rng()))  # fmt: skip
+    assert cover.dtype == np.uint8 and cover.shape == frames.shape[:3]
+    assert (cover == 255).mean() > 0.1 and (cover == 0).mean() > 0.1
+    assert not np.array_equal(cover[0], cover[1]), "coverage moves with the cloth"
+    # Premultiplied compositing: frame = cloth over black + (1 - alpha) * background.
+    black = renderer.render_clip(clip, tri, uv, WHITE, None, rng=_rng())
+    alpha = cover[..., None] / 255.0
+    expected = black + (1.0 - alpha) * np.array(BACKGROUND_RGB)
+    assert np.abs(frames - expected).max() <= 1.01
+
+
 def _arm_sequence(frame_count=11):
     from simulator.scenario import ScenarioArmBend
 
