@@ -30,7 +30,8 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     ]  # fmt: skip
     assert wind[3:12] == ["full", "held-out sims", "as rendered", "432", "12.5 (50)", "-",
                           "25.0 (50)", "-", "50.0 (50)"]  # fmt: skip
-    assert wind[12:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
+    assert wind[12] == "-"  # no two-stream run
+    assert wind[13:] == ["53.6", "53.3", "64.7"]  # thesis, wind Unif-1 Rand1
     assert wind_swap[4:12] == ["held-out sims", "background swap", "432", "-", "-",
                                "37.5 (50)", "-", "-"]  # fmt: skip
     assert wind_seq[4:12] == ["thesis sub-seq.", "as rendered", "432", "-", "-", "75.0 (50)",
@@ -57,7 +58,7 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
         ("random", "full", "held-out sims"), ("grid", "full", "held-out sims"),
     ]  # fmt: skip
     assert arm[0][7] == "25.0 (50)" and arm[2][11] == "50.0 (50)" and arm[3][11] == "62.5 (50)"
-    assert arm[2][12:] == ["54.0", "56.8", "62.9"] and arm[3][12:] == ["-", "-", "-"]
+    assert arm[2][13:] == ["54.0", "56.8", "62.9"] and arm[3][13:] == ["-", "-", "-"]
     assert "bgswap" not in table.split("No runs yet:")[1]  # variants are not listed as missing
     assert "arm random full thesis sub-seq." in table.split("No runs yet:")[1]
     assert "| wind" not in table and "wind grid full held-out sims" in table
