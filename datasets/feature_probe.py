@@ -13,6 +13,10 @@ the report says *where* the class information lies:
 * ``pixels`` and ``motion``: the 1-NN references' image features (mean frame, frame
   differences).
 
+With ``--by-clip-index`` the geometry MLP is also trained and scored on the clips of each
+position in the recording separately (clip k of every simulation), which says *when* the
+information lies (e.g. during the arm's flexion rather than in the drape that follows).
+
 ::
 
     python -m datasets.feature_probe data/wind-L1-random-full-s0 --out reports/oracle
@@ -35,7 +39,7 @@ from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
 from .geometry_oracle import clip_geometry, clip_motion, clip_pixels, write_report
 from .manifest import SPLIT_PROTOCOLS, Manifest
 
-__all__ = ["FEATURES", "mlp_accuracy", "probe_markdown", "run_probe"]
+__all__ = ["FEATURES", "by_clip_index", "mlp_accuracy", "probe_markdown", "run_probe"]
 
 FEATURES = {
     "geometry": "vertex positions of all frames",
@@ -122,6 +126,22 @@ def mlp_accuracy(
     }
 
 
+def by_clip_index(
+    train: list[dict], test: list[dict], features: dict[str, np.ndarray], *, epochs: int = 200
+) -> dict[int, dict]:
+    """:func:`mlp_accuracy` trained and scored on the clips of one position at a time."""
+    positions = sorted({int(r["clip_index"]) for r in test})
+    return {
+        k: mlp_accuracy(
+            [r for r in train if int(r["clip_index"]) == k],
+            [r for r in test if int(r["clip_index"]) == k],
+            features,
+            epochs=epochs,
+        )
+        for k in tqdm(positions, desc="geometry MLP per clip position")
+    }
+
+
 def run_probe(
     data_dir: str | Path,
     cache_dir: str | Path,
@@ -129,8 +149,13 @@ def run_probe(
     *,
     protocol: str = "simulation",
     epochs: int = 200,
+    per_clip_index: bool = False,
 ) -> dict:
-    """An MLP per feature; writes ``<name>-mlp.json`` / ``.md``; returns ``{feature: result}``."""
+    """An MLP per feature; writes ``<name>-mlp.json`` / ``.md``; returns ``{feature: result}``.
+
+    With ``per_clip_index`` the geometry MLP per clip position is added to both reports
+    (JSON key ``geometry_by_clip_index``).
+    """
     manifest = Manifest.load(data_dir)
     train, test = manifest.clips_of("train", protocol), manifest.clips_of("test", protocol)
     features = _features(manifest, cache_dir)
@@ -138,16 +163,36 @@ def run_probe(
         kind: mlp_accuracy(train, test, x, epochs=epochs)
         for kind, x in tqdm(features.items(), desc="MLP per feature", total=len(features))
     }
+    positions = (
+        by_clip_index(train, test, features["geometry"], epochs=epochs) if per_clip_index else {}
+    )
     name = Path(data_dir).name
     payload = {"data_dir": str(data_dir), "protocol": protocol, "epochs": epochs,
                "results": results, "features": FEATURES}  # fmt: skip
-    table = probe_markdown(name, protocol, epochs, results)
+    if positions:
+        payload["geometry_by_clip_index"] = {str(k): r for k, r in positions.items()}
+    table = probe_markdown(name, protocol, epochs, results, positions, _clip_starts(manifest))
     write_report(out_dir, f"{name}-mlp", payload, table)
     return results
 
 
-def probe_markdown(name: str, protocol: str, epochs: int, results: dict) -> str:
-    """The Markdown report of :func:`run_probe`'s ``results``."""
+def _clip_starts(manifest: Manifest) -> dict[int, tuple[int, float]]:
+    """Clip position -> (first recorded frame, its time after recording starts [s])."""
+    return {
+        int(r["clip_index"]): (int(r["start_frame"]), int(r["start_frame"]) / float(r["fps"]))
+        for r in manifest.clips
+    }
+
+
+def probe_markdown(
+    name: str,
+    protocol: str,
+    epochs: int,
+    results: dict,
+    positions: dict[int, dict] | None = None,
+    starts: dict[int, tuple[int, float]] | None = None,
+) -> str:
+    """The Markdown report of :func:`run_probe`'s ``results`` (and per-position results)."""
     what = {kind: text.replace("|", r"\|") for kind, text in FEATURES.items()}  # table-safe
     rows = [
         f"| {kind} | {what[kind]} | {r['clips']} | "
@@ -161,7 +206,28 @@ def probe_markdown(name: str, protocol: str, epochs: int, results: dict) -> str:
         "scored on the test clips.", "",
         "| features | what | test clips | top-1 % | stretch % | bend % | train fit % |",
         "|---|---|---|---|---|---|---|", *rows, "",
+        *_positions_markdown(positions or {}, starts or {}),
     ])  # fmt: skip
+
+
+def _positions_markdown(
+    positions: dict[int, dict], starts: dict[int, tuple[int, float]]
+) -> list[str]:
+    if not positions:
+        return []
+    rows = [
+        f"| {k} | {starts[k][0]} | {starts[k][1]:.2f} | {r['clips']} | {100 * r['acc']:.1f} | "
+        f"{100 * r['stretch_acc']:.1f} | {100 * r['bend_acc']:.1f} | {100 * r['train_acc']:.1f} |"
+        for k, r in positions.items()
+    ]
+    return [
+        "## When: the geometry MLP per clip position", "",
+        "Trained and scored on clip k of every simulation only (fewer training clips than the "
+        "table above).", "",
+        "| clip | first frame | at [s] | test clips | top-1 % | stretch % | bend % "
+        "| train fit % |",
+        "|---|---|---|---|---|---|---|---|", *rows, "",
+    ]  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -172,12 +238,17 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=Path("reports/oracle"))
     parser.add_argument("--protocol", default="simulation", choices=SPLIT_PROTOCOLS)
     parser.add_argument("--epochs", type=int, default=200)
+    parser.add_argument(
+        "--by-clip-index", action="store_true",
+        help="also the geometry MLP per clip position in the recording",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     if args.epochs < 1:
         parser.error(f"--epochs must be >= 1, got {args.epochs}")
     results = run_probe(
-        args.data_dir, args.mesh_cache, args.out, protocol=args.protocol, epochs=args.epochs
-    )
+        args.data_dir, args.mesh_cache, args.out, protocol=args.protocol, epochs=args.epochs,
+        per_clip_index=args.by_clip_index,
+    )  # fmt: skip
     for kind, r in results.items():
         print(
             f"{kind:>16}: top-1 {100 * r['acc']:.1f} %, stretch {100 * r['stretch_acc']:.1f} %, "

@@ -7,7 +7,10 @@ the thesis's sub-sequence split, ``*_seq.yaml``), writes
 ``<!-- table72:end -->`` in README.md. Missing runs show as "-"; the thesis's numbers for the
 same setting (Unif-1 / Rand1) stand beside ours. ``--arm-preset small,full`` gives a row
 per preset, ``--texture random,grid`` a row per texture; a setting without any run is listed
-under the table instead of as an empty row. Runs of a training variant
+under the table instead of as an empty row. ``--scenes wind,arm,armstrokes`` adds datasets
+generated with another scene of the same motion (the folder-name prefix of their
+``out_dir``; the thesis's numbers of the motion it starts with stand beside them). Runs of a
+training variant
 (``logs/train/<dataset>[-seq]-bgswap-<method>``, ``variant=bgswap``) get rows of their own.
 """
 
@@ -51,6 +54,14 @@ VARIANTS = {"": "as rendered", "-bgswap": "background swap"}
 """Training variant run-name tag (``configs/variant/``) -> table label."""
 
 
+def thesis_motion(scene: str) -> str:
+    """The thesis motion (``wind`` or ``arm``) a scene's dataset prefix starts with."""
+    for motion in ("wind", "arm"):
+        if scene.startswith(motion):
+            return motion
+    raise ValueError(f"--scenes entries must start with wind or arm, got {scene!r}")
+
+
 def dataset_name(motion: str, level: int, texture: str, preset: str, seed: int) -> str:
     """The folder name ``datasets.generate`` (and ``configs/dataset``) give a dataset."""
     return f"{motion}-L{level}-{texture}-{preset}-s{seed}"
@@ -90,7 +101,7 @@ def render_table(
     missing: list[str] = []
     settings = [(m, t, p) for m, names in presets.items() for t in textures for p in names]
     for motion, texture, preset in settings:
-        thesis = THESIS_TABLE_72.get((motion, level), (None, None, None))
+        thesis = THESIS_TABLE_72.get((thesis_motion(motion), level), (None, None, None))
         if texture != "random":
             thesis = (None, None, None)
         theirs = ["-" if t is None else f"{t:.1f}" for t in thesis]
@@ -156,15 +167,23 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--preset", default="full", help="preset(s) of both motions, a,b")
     parser.add_argument("--wind-preset", default=None, help="overrides --preset for wind")
     parser.add_argument("--arm-preset", default=None, help="overrides --preset for arm")
+    parser.add_argument(
+        "--scenes", default="wind,arm",
+        help="dataset prefixes, a,b (e.g. armstrokes: arm data generated with scenario.strokes)",
+    )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("reports/table72.md"))
     parser.add_argument("--readme", type=Path, default=Path("README.md"))
     parser.add_argument("--no-readme", action="store_true", help="only write --out")
     args = parser.parse_args(argv)
-    presets = {
+    motion_presets = {
         "wind": (args.wind_preset or args.preset).split(","),
         "arm": (args.arm_preset or args.preset).split(","),
     }
+    try:
+        presets = {s: motion_presets[thesis_motion(s)] for s in args.scenes.split(",")}
+    except ValueError as err:
+        parser.error(str(err))
     table = render_table(
         args.log_dir,
         level=args.level,

@@ -51,6 +51,24 @@ def _smoothstep_rate(t: float) -> float:
     return 6.0 * t * (1.0 - t) if 0.0 < t < 1.0 else 0.0
 
 
+def stroke_profile(phase: float, strokes: int) -> tuple[float, float]:
+    """Flexion fraction and its rate (per unit phase) after ``phase`` strokes.
+
+    Strokes alternate flexion (0 -> 1) and extension (1 -> 0), each a :func:`smoothstep`
+    one phase unit long, so the profile is C1 and rests at both ends of every stroke.
+    """
+    if phase <= 0.0:
+        return 0.0, 0.0
+    if phase >= strokes:
+        return float(strokes % 2), 0.0
+    stroke = int(phase)
+    local = phase - stroke
+    flexing = stroke % 2 == 0
+    value = smoothstep(local) if flexing else 1.0 - smoothstep(local)
+    rate = _smoothstep_rate(local) * (1.0 if flexing else -1.0)
+    return value, rate
+
+
 def _check_level(level: int) -> int:
     if level not in RESOLUTION_LEVELS:
         raise ValueError(
@@ -220,6 +238,8 @@ class ArmDriver:
     """Final elbow flexion per instance [rad], shape (B,)."""
     settle_time: float
     bend_time: float
+    strokes: int = 1
+    """Alternating flex / extend strokes (1 = flex once and hold)."""
 
     def _wrist(self, angle: torch.Tensor) -> torch.Tensor:
         direction = torch.stack([torch.cos(angle), 0 * angle, torch.sin(angle)], -1)
@@ -227,9 +247,11 @@ class ArmDriver:
 
     def control(self, time: float, pos: torch.Tensor) -> SimControl:
         """Capsules and their end-point velocities at ``time`` [s]."""
-        phase = (time - self.settle_time) / self.bend_time
-        angle = self.bend_angle * smoothstep(phase)
-        rate = self.bend_angle * _smoothstep_rate(phase) / self.bend_time
+        fraction, fraction_rate = stroke_profile(
+            (time - self.settle_time) / self.bend_time, self.strokes
+        )
+        angle = self.bend_angle * fraction
+        rate = self.bend_angle * fraction_rate / self.bend_time
         batch = self.bend_angle.shape[0]
         wrist = self._wrist(angle)
         tangent = torch.stack([-torch.sin(angle), 0 * angle, torch.cos(angle)], -1)
@@ -260,7 +282,11 @@ class ScenarioArmBend:
     fore_radius: float = 0.04
     bend_angle_deg: float = 90.0
     bend_time: float = 1.0
-    """Duration of the flexion [s]."""
+    """Duration of the flexion (and of each later stroke) [s]."""
+    strokes: int = 1
+    """Strokes of the elbow, alternately flexing and extending (1 = flex once and hold).
+    With one stroke the cloth comes to rest on the bent arm after bend_time, and later clips
+    see little motion; more strokes keep every clip of a recording in motion."""
     drop_clearance: float = 0.01
     """Initial gap between cloth and arm top [m]."""
     offset_jitter: float = 0.03
@@ -289,6 +315,8 @@ class ScenarioArmBend:
             )
         if self.settle_time < 0:
             raise ValueError(f"scenario.settle_time must be >= 0, got {self.settle_time}")
+        if not isinstance(self.strokes, int) or self.strokes < 1:
+            raise ValueError(f"scenario.strokes must be an integer >= 1, got {self.strokes!r}")
 
     def mesh(self, dtype: torch.dtype = torch.float64) -> TriMesh:
         """Horizontal cloth centred over the elbow, warp along x."""
@@ -346,5 +374,6 @@ class ScenarioArmBend:
             angle,
             self.settle_time,
             self.bend_time,
+            self.strokes,
         )
         return model, state, driver

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from datasets.feature_probe import FEATURES, main, mlp_accuracy
+from datasets.feature_probe import FEATURES, by_clip_index, main, mlp_accuracy, probe_markdown
 
 from .test_split_protocol import _manifest
 
@@ -44,3 +44,29 @@ def test_probe_command_writes_json_and_markdown(tiny_dataset, tmp_path):
     assert "sqrt \\|grey frame difference\\|" in text  # pipes escaped inside the table
     with pytest.raises(SystemExit):
         main([str(tiny_dataset), "--epochs", "0"])
+
+
+def test_per_clip_position_reads_the_position_that_carries_the_class():
+    manifest = _manifest(sims_per_class=(6, 1, 4))
+    train, test = manifest.clips_of("train"), manifest.clips_of("test")
+    positions = sorted({int(c["clip_index"]) for c in manifest.clips})
+    assert len(positions) > 1
+    informative = positions[-1]
+    rng = np.random.default_rng(0)
+    code = {c: rng.normal(size=20) for c in (0, 7, 53)}
+    features = {
+        c["key"]: np.float32(3.0 * (int(c["clip_index"]) == informative) * code[c["class_id"]]
+                             + rng.normal(size=20))
+        for c in manifest.clips
+    }  # fmt: skip
+    results = by_clip_index(train, test, features, epochs=40)
+    assert sorted(results) == positions
+    assert results[informative]["acc"] == 1.0
+    assert all(results[k]["acc"] < 0.8 for k in positions if k != informative)
+
+
+def test_positions_table_lists_each_clip_start():
+    result = {"clips": 4, "acc": 0.5, "stretch_acc": 0.75, "bend_acc": 0.5, "train_acc": 1.0}
+    text = probe_markdown("d", "simulation", 2, {"geometry": result}, {0: result, 1: result},
+                          {0: (0, 0.0), 1: (10, 10 / 15)})  # fmt: skip
+    assert "| 1 | 10 | 0.67 | 4 | 50.0 | 75.0 | 50.0 | 100.0 |" in text

@@ -32,7 +32,7 @@ def _manifest(sims_per_class=(3, 1, 2), clips_per_sim=4, classes=(0, 7, 53)) -> 
                     key = f"wind-c{class_id:02d}-s{s:02d}-k{k:02d}"
                     clips.append({"key": key, "class_id": class_id, "split": split,
                                   "stretch_index": class_id // 9, "bend_index": class_id % 9,
-                                  "sim_id": f"c{class_id:02d}-s{s:02d}",
+                                  "sim_id": f"c{class_id:02d}-s{s:02d}", "clip_index": k,
                                   "shard": f"{split}-unit-0000.tar"})  # fmt: skip
                 s += 1
     return Manifest(root=Path("."), spec={}, spec_key="", shards=(), clips=tuple(clips))

@@ -65,6 +65,20 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
     assert "arm full cnn_lstm_diff" not in table  # no epochs recorded: no budget note
 
 
+def test_extra_scene_gets_rows_with_its_motions_thesis_numbers(tmp_path):
+    logs = tmp_path / "logs"
+    _report(logs, "armstrokes-L1-grid-full-s0-cnn_lstm_diff", 0.5)
+    table = main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
+                  "--scenes", "arm,armstrokes", "--texture", "grid"])  # fmt: skip
+    (row,) = [[c.strip() for c in line.split("|")[1:-1]]
+              for line in table.splitlines() if line.startswith("| armstrokes")]  # fmt: skip
+    assert row[0] == "armstrokes" and row[11] == "50.0 (50)" and row[13:] == ["-", "-", "-"]
+    assert "arm grid full held-out sims" in table.split("No runs yet:")[1]
+    with pytest.raises(SystemExit):
+        main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
+              "--scenes", "flag"])  # fmt: skip
+
+
 def test_readme_without_markers_is_refused(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("no block\n")

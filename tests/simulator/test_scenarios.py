@@ -15,7 +15,7 @@ from simulator.material import CLASS_COUNT, ClothMaterial, load_wang_material
 from simulator.mesh import TriMesh
 from simulator.model import SimControl, SimState
 from simulator.rollout import SimSettings, simulate
-from simulator.scenario import ScenarioArmBend, ScenarioWind
+from simulator.scenario import ScenarioArmBend, ScenarioWind, stroke_profile
 from simulator.sensitivity import bend_test, stretch_test
 from simulator.sequence import MeshSequence
 from tests.conftest import assert_close
@@ -175,6 +175,51 @@ def test_divergence_is_reported_with_instance_and_step():
 def test_bad_scenario_values_name_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
         ScenarioWind(**kwargs)
+
+
+@pytest.mark.parametrize("strokes", [0, -1, 1.5])
+def test_bad_arm_strokes_name_the_field(strokes):
+    with pytest.raises(ValueError, match=r"scenario\.strokes"):
+        ScenarioArmBend(strokes=strokes)
+
+
+@pytest.mark.parametrize("strokes", [1, 2, 3])
+def test_stroke_profile_is_c1_with_its_analytic_rate(strokes):
+    phases = np.linspace(-0.5, strokes + 0.5, 2001)
+    values = np.array([stroke_profile(p, strokes)[0] for p in phases])
+    rates = np.array([stroke_profile(p, strokes)[1] for p in phases])
+    h = 1e-6
+    fd = np.array(
+        [(stroke_profile(p + h, strokes)[0] - stroke_profile(p - h, strokes)[0]) / (2 * h)
+         for p in phases]
+    )  # fmt: skip
+    assert np.abs(fd - rates).max() < 1e-5, "rate is not the derivative of the profile"
+    assert np.abs(np.diff(values)).max() < 0.01, "profile jumps"
+    assert values.min() == 0.0 and values.max() == 1.0
+    # rests at the end of every stroke: fully flexed after odd strokes, straight after even
+    for k in range(1, strokes + 1):
+        assert stroke_profile(float(k), strokes) == (float(k % 2), 0.0)
+    assert stroke_profile(strokes + 3.0, strokes)[0] == strokes % 2
+
+
+def test_one_stroke_is_the_single_flexion_and_more_strokes_extend_the_arm():
+    once = ScenarioArmBend(resolution_level=1, settle_time=0.0, bend_time=0.5)
+    thrice = dataclasses.replace(once, strokes=3)
+    material = ClothMaterial.from_classes([0])
+    pos = torch.zeros(1, 0, 3, dtype=torch.float64)
+
+    def wrist_height(scene, time):
+        driver = scene.build(material, seeds=[0])[2]
+        return float(driver.control(time, pos).capsules[0, 1, 5])
+
+    top = once.arm_height + once.forearm_length  # 90 degrees: the wrist straight above
+    assert wrist_height(once, 0.5) == pytest.approx(top)
+    assert wrist_height(once, 1.0) == pytest.approx(top)
+    assert wrist_height(thrice, 0.5) == pytest.approx(top)
+    assert wrist_height(thrice, 1.0) == pytest.approx(once.arm_height)  # extended again
+    assert wrist_height(thrice, 1.5) == pytest.approx(top)
+    for t in (0.1, 0.25, 0.4):  # the first stroke is the single flexion
+        assert wrist_height(thrice, t) == pytest.approx(wrist_height(once, t))
 
 
 def test_bad_settings_and_effects_name_the_field():
