@@ -315,7 +315,7 @@ class ScenarioArmBend:
             )
         if self.settle_time < 0:
             raise ValueError(f"scenario.settle_time must be >= 0, got {self.settle_time}")
-        if not isinstance(self.strokes, int) or self.strokes < 1:
+        if isinstance(self.strokes, bool) or not isinstance(self.strokes, int) or self.strokes < 1:
             raise ValueError(f"scenario.strokes must be an integer >= 1, got {self.strokes!r}")
 
     def mesh(self, dtype: torch.dtype = torch.float64) -> TriMesh:

@@ -177,7 +177,7 @@ def test_bad_scenario_values_name_the_field(kwargs, field):
         ScenarioWind(**kwargs)
 
 
-@pytest.mark.parametrize("strokes", [0, -1, 1.5])
+@pytest.mark.parametrize("strokes", [0, -1, 1.5, True])
 def test_bad_arm_strokes_name_the_field(strokes):
     with pytest.raises(ValueError, match=r"scenario\.strokes"):
         ScenarioArmBend(strokes=strokes)
