@@ -36,6 +36,7 @@ from tqdm import tqdm
 
 from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
 
+from .geometry_oracle import FEATURES as ORACLE_FEATURES
 from .geometry_oracle import clip_geometry, clip_motion, clip_pixels, write_report
 from .manifest import SPLIT_PROTOCOLS, Manifest
 
@@ -45,8 +46,8 @@ FEATURES = {
     "geometry": "vertex positions of all frames",
     "geometry_shape": "mean vertex positions over the clip (shape only)",
     "geometry_motion": "frame-to-frame vertex displacements (motion only)",
-    "pixels": "mean frame, 32 x 32 RGB",
-    "motion": "sqrt |grey frame difference|, 16 x 16 per step",
+    "pixels": ORACLE_FEATURES["pixels"],
+    "motion": ORACLE_FEATURES["motion"],
 }
 
 
