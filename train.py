@@ -17,7 +17,7 @@ import hydra
 import lightning as L
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 log = logging.getLogger(__name__)
 
@@ -65,9 +65,20 @@ def _training_summary(last: Path) -> dict:
 def train(cfg: DictConfig) -> dict:
     """Fit (or resume), then evaluate the best checkpoint; returns the test metrics."""
     from models.evaluate import evaluate_simulated
-    from models.material_classifier import load_classifier
+    from models.material_classifier import (
+        ENCODER_CHECKPOINT_KEYS,
+        init_weights_from,
+        load_classifier,
+    )
 
     output_dir = Path(cfg.paths.output_dir)
+    resume = _resume_path(cfg, output_dir) if cfg.train else None
+    init_from = cfg.get("init_from")
+    if init_from:  # the whole net comes from that checkpoint, not from its stages' CNNs
+        with open_dict(cfg):
+            for key in ENCODER_CHECKPOINT_KEYS:
+                if key in cfg.model.net:
+                    cfg.model.net[key] = None
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     if torch.cuda.is_available():
@@ -76,13 +87,16 @@ def train(cfg: DictConfig) -> dict:
     datamodule = instantiate(cfg.data)
     model = instantiate(cfg.model)
     model.hparams["net_config"] = OmegaConf.to_container(cfg.model.net, resolve=True)
+    if init_from and cfg.train and resume is None:
+        init_weights_from(model, init_from)
+        log.info("weights from %s", init_from)
     loggers = _loggers(cfg)
     trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg), logger=loggers)
     config = OmegaConf.to_container(cfg, resolve=True)
     for logger in loggers:
         logger.log_hyperparams(config)
     if cfg.train:
-        trainer.fit(model, datamodule=datamodule, ckpt_path=_resume_path(cfg, output_dir))
+        trainer.fit(model, datamodule=datamodule, ckpt_path=resume)
     metrics = _training_summary(output_dir / "checkpoints" / "last.ckpt")
     if cfg.test and trainer.is_global_zero:
         best = output_dir / "checkpoints" / "best.ckpt"

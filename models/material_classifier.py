@@ -25,7 +25,16 @@ from torch import nn
 
 from .metrics import classification_metrics
 
-__all__ = ["MaterialClassifierModule", "batch_input", "load_classifier"]
+__all__ = [
+    "ENCODER_CHECKPOINT_KEYS",
+    "MaterialClassifierModule",
+    "batch_input",
+    "init_weights_from",
+    "load_classifier",
+]
+
+ENCODER_CHECKPOINT_KEYS = ("encoder_checkpoint", "motion_encoder_checkpoint")
+"""Net config keys naming other runs' CNNs to start from; moot once a whole state dict loads."""
 
 
 def batch_input(batch: dict) -> torch.Tensor:
@@ -169,7 +178,7 @@ def load_classifier(
     net_config = copy.deepcopy(hparams.get("net_config"))
     if not net_config:
         raise ValueError(f"checkpoint {path} has no net_config; was it written by train.py?")
-    for key in ("encoder_checkpoint", "motion_encoder_checkpoint"):
+    for key in ENCODER_CHECKPOINT_KEYS:
         if key in net_config:
             net_config[key] = None  # the encoders' weights are in this state dict
     net = instantiate(net_config)
@@ -182,3 +191,25 @@ def load_classifier(
     module.load_state_dict(raw["state_dict"])
     module.best_val_acc = float(raw.get("best_val_acc", 0.0))
     return module.eval()
+
+
+def init_weights_from(module: MaterialClassifierModule, checkpoint: str | Path) -> None:
+    """Start ``module`` from the weights of another run's checkpoint (``init_from``).
+
+    Only the weights move: optimizer, schedule, epoch counter and best accuracy start afresh,
+    so a second stage can train the same net on a new (e.g. lower) learning-rate schedule.
+    The nets must match exactly.
+    """
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(f"init_from {path} does not exist")
+    raw = torch.load(path, map_location="cpu", weights_only=False)
+    if "state_dict" not in raw:
+        raise ValueError(f"init_from {path} has no state_dict; was it written by train.py?")
+    try:
+        module.load_state_dict(raw["state_dict"])
+    except RuntimeError as error:
+        raise ValueError(
+            f"init_from {path} does not fit this model (method {module.hparams.method!r}): "
+            f"{' '.join(str(error).split())[:400]}"
+        ) from error

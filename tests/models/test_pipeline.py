@@ -150,6 +150,22 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     for key, value in b1.net.encoder.state_dict().items():
         torch.testing.assert_close(b2.net.encoder.state_dict()[key], value, msg=key)
 
+    # A second stage starts from a run's weights (init_from) on its own schedule: at lr 0 the
+    # trained parameters stay exactly those of the checkpoint it started from.
+    stage2 = logs / "train" / "tiny-stage2-cnn_lstm"
+    cfg_stage2 = _train_cfg(model_dataset, stage2, f"init_from={best}",
+                            "model.optimizer.lr=0.0", "model.optimizer.weight_decay=0.0",
+                            log_dir=logs)  # fmt: skip
+    train_entry.train(cfg_stage2)
+    after = load_classifier(stage2 / "checkpoints" / "best.ckpt")
+    for name, value in after.named_parameters():
+        torch.testing.assert_close(value, first.get_parameter(name), rtol=0, atol=0, msg=name)
+    with pytest.raises(FileNotFoundError, match=r"init_from .*nope.ckpt does not exist"):
+        train_entry.train(_train_cfg(model_dataset, tmp_path / "x", "init_from=nope.ckpt"))
+    wrong = _train_cfg(model_dataset, tmp_path / "y", f"init_from={base1}/checkpoints/best.ckpt")
+    with pytest.raises(ValueError, match=r"init_from .* does not fit this model"):
+        train_entry.train(wrong)  # baseline 1's per-frame net into a CNN+LSTM
+
     # The two-stream model, trained over swapped backgrounds, rebuilds from its checkpoint.
     two = logs / "train" / "tiny-cnn_lstm_2s"
     cfg3 = _train_cfg(model_dataset, two, "model=cnn_lstm_2s", encoder,
