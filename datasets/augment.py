@@ -2,7 +2,8 @@
 
 Only changes a material cannot cause: a random crop-and-resize (framing), a horizontal
 flip (wind from the other side), small brightness/contrast/saturation changes
-(:class:`ClipAugment`) and a new background behind the cloth (:class:`BackgroundSwap`).
+(:class:`ClipAugment`), a new print on the cloth (:class:`TextureSwap`) and a new background
+behind it (:class:`BackgroundSwap`).
 Random draws use torch's global generator, which Lightning seeds per data-loader worker.
 """
 
@@ -15,11 +16,15 @@ import torch
 from torchvision.transforms.v2 import functional as tvf
 
 from render.backgrounds import make_background
+from render.passes import PASS_NAMES, retexture
+from render.textures import TextureMode, make_texture
 
-__all__ = ["BackgroundSwap", "ClipAugment"]
+__all__ = ["BackgroundSwap", "ClipAugment", "TextureSwap"]
 
 _SWAP_STREAM = 23
 """Keeps the swapped-in backgrounds apart from the generator's (seeded by simulation)."""
+_TEXTURE_SWAP_STREAM = 29
+"""Keeps the swapped-in textures apart from the generator's and the background swap's."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,6 +69,64 @@ class BackgroundSwap:
         background = torch.from_numpy(background).permute(2, 0, 1).to(video) / 255.0
         alpha = coverage[:, None].to(video) / 255.0
         return alpha * video + (1.0 - alpha) * background
+
+
+@dataclasses.dataclass(frozen=True)
+class TextureSwap:
+    """Re-texture a training clip's cloth with a freshly drawn texture.
+
+    Why: with the ``random`` texture every simulation wears its own print, so a network can
+    name a training clip's class from the print, as it can from the background (which
+    :class:`BackgroundSwap` removes). With a new texture for every sample and epoch (one per
+    clip, from the generator's bank, :func:`render.textures.make_texture`) the print carries
+    no label. Needs the render passes the generator stores (``render.store_passes``);
+    the re-texturing is :func:`render.passes.retexture` (mean error about 2/255 against a
+    render with the same texture). Image effects that the generator applied after rendering
+    (noise, compression, defocus, white balance) are not in the passes and so are absent from
+    swapped clips.
+    """
+
+    prob: float = 0.0
+    """Chance that a training sample gets a new texture; 0 = off."""
+    mode: str = "random"
+    """Texture mode to draw from (``grid``, ``color``, ``random``)."""
+    size: int = 256
+    """Side of the drawn textures [texels] (the generator's ``texture_size``)."""
+
+    def __post_init__(self):
+        if not 0 <= self.prob <= 1:
+            raise ValueError(f"data.texture_swap.prob must be in [0, 1], got {self.prob}")
+        try:
+            TextureMode(self.mode)
+        except ValueError:
+            raise ValueError(
+                f"data.texture_swap.mode must be one of {[m.value for m in TextureMode]}, "
+                f"got {self.mode!r}"
+            ) from None
+        if isinstance(self.size, bool) or not isinstance(self.size, int) or self.size < 8:
+            raise ValueError(f"data.texture_swap.size must be an integer >= 8, got {self.size!r}")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any sample is ever changed (only then are the passes needed)."""
+        return self.prob > 0
+
+    def __call__(self, layers: dict[str, np.ndarray], coverage: np.ndarray) -> np.ndarray | None:
+        """New uint8 frames (T, H, W, 3), or ``None`` when this sample keeps its texture.
+
+        ``layers``: the clip's ``grey``, ``black``, ``uvm`` passes (T, H, W, 3) and its
+        ``background`` (1, H, W, 3); ``coverage`` uint8 (T, H, W).
+        """
+        if not float(torch.rand(())) < self.prob:
+            return None
+        seed = int(torch.randint(0, 2**62, ()))
+        texture = make_texture(
+            self.mode, np.random.default_rng([seed, _TEXTURE_SWAP_STREAM]), self.size
+        )
+        return retexture(
+            *(layers[name] for name in PASS_NAMES), coverage, layers["background"][0],
+            texture,
+        )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

@@ -21,7 +21,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from .augment import BackgroundSwap
+from render.passes import PASS_NAMES
+
+from .augment import BackgroundSwap, TextureSwap
 from .manifest import Manifest
 from .shards import ShardError, ShardReader, frames_sha256
 
@@ -54,6 +56,9 @@ class ClothClipDataset(Dataset):
         background_swap: Re-composite each clip over a new background before
             ``transform`` (:class:`~datasets.augment.BackgroundSwap`); needs a dataset
             generated with ``render.store_coverage=true``.
+        texture_swap: Re-texture each clip's cloth before the background swap
+            (:class:`~datasets.augment.TextureSwap`); needs a dataset generated with
+            ``render.store_passes=true``.
     """
 
     def __init__(
@@ -67,6 +72,7 @@ class ClothClipDataset(Dataset):
         cache: bool = False,
         split_protocol: str = "simulation",
         background_swap: BackgroundSwap | None = None,
+        texture_swap: TextureSwap | None = None,
     ):
         self.manifest = Manifest.load(root)
         self.split = split
@@ -77,19 +83,29 @@ class ClothClipDataset(Dataset):
             self.manifest.verify(names={r["shard"] for r in self.records})
         self.transform = transform
         self.check_clips = check_clips
-        enabled = background_swap is not None and background_swap.enabled
-        self.background_swap = background_swap if enabled else None
-        if self.background_swap is not None:
-            lacking = [r["key"] for r in self.records if not r.get("coverage", False)]
-            if lacking:
-                raise ValueError(
-                    f"data.background_swap needs each clip's coverage, but {len(lacking)} clips "
-                    f"of {root} (e.g. {lacking[0]}) have none: regenerate the dataset with "
-                    f"render.store_coverage=true, or set data.background_swap.prob=0"
-                )
+        self.background_swap = self._swap_if_stored(
+            root, background_swap, "background_swap", "coverage", "coverage", "store_coverage"
+        )
+        self.texture_swap = self._swap_if_stored(
+            root, texture_swap, "texture_swap", "passes", "render passes", "store_passes"
+        )
         self._readers: dict[str, ShardReader] = {}
         self._cache: dict[int, tuple[dict, np.ndarray]] | None = {} if cache else None
         self._coverage_cache: dict[int, np.ndarray] | None = {} if cache else None
+        self._layer_cache: dict[int, dict[str, np.ndarray]] | None = {} if cache else None
+
+    def _swap_if_stored(self, root, swap, name: str, flag: str, what: str, switch: str):
+        """``swap`` if it is on (``None`` if off), after checking every clip stored ``flag``."""
+        if swap is None or not swap.enabled:
+            return None
+        lacking = [r["key"] for r in self.records if not r.get(flag, False)]
+        if lacking:
+            raise ValueError(
+                f"data.{name} needs each clip's {what}, but {len(lacking)} clips of {root} "
+                f"(e.g. {lacking[0]}) have none: regenerate the dataset with "
+                f"render.{switch}=true, or set data.{name}.prob=0"
+            )
+        return swap
 
     def __len__(self) -> int:
         return len(self.records)
@@ -127,8 +143,37 @@ class ClothClipDataset(Dataset):
             self._coverage_cache[index] = coverage
         return coverage
 
-    def swapped(self, index: int, video: torch.Tensor, frames: slice = slice(None)):
-        """``video`` (frames ``frames`` of clip ``index``) over a new background, if enabled."""
+    def read_layers(self, index: int) -> dict[str, np.ndarray]:
+        """Render passes (T, H, W, 3) and background (1, H, W, 3) of clip ``index``, uint8."""
+        if self._layer_cache is not None and index in self._layer_cache:
+            return self._layer_cache[index]
+        record = self.records[index]
+        reader = self._reader(record)
+        count = int(record["frame_count"])
+        layers = {}
+        for name, images in (*((n, count) for n in PASS_NAMES), ("background", 1)):
+            layer = reader.read_layer(record["key"], name, images)
+            if layer is None:
+                raise ShardError(f"clip {record['key']} in {reader.path} has no {name!r} layer")
+            layers[name] = layer
+        if self._layer_cache is not None:
+            self._layer_cache[index] = layers
+        return layers
+
+    def swapped(self, index: int, pixels: np.ndarray, frames: slice = slice(None)):
+        """Frames ``frames`` of clip ``index`` (``pixels``, uint8) as a float clip tensor.
+
+        Re-textured and over a new background where those swaps are enabled.
+        """
+        if self.texture_swap is not None:
+            layers = {
+                name: layer if name == "background" else layer[frames]
+                for name, layer in self.read_layers(index).items()
+            }
+            coverage = self.read_coverage(index)[frames]
+            retextured = self.texture_swap(layers, coverage)
+            pixels = pixels if retextured is None else retextured
+        video = clip_tensor(pixels)
         if self.background_swap is None:
             return video
         coverage = torch.from_numpy(self.read_coverage(index)[frames])
@@ -145,7 +190,7 @@ class ClothClipDataset(Dataset):
 
     def __getitem__(self, index: int) -> dict:
         record, frames = self.read(index)
-        video = self.swapped(index, clip_tensor(frames))
+        video = self.swapped(index, frames)
         if self.transform is not None:
             video = self.transform(video)
         return {"video": video, **self.targets(record)}
@@ -164,6 +209,7 @@ class ClothFrameDataset(Dataset):
         cache: bool = False,
         split_protocol: str = "simulation",
         background_swap: BackgroundSwap | None = None,
+        texture_swap: TextureSwap | None = None,
     ):
         self.clips = ClothClipDataset(
             root,
@@ -172,6 +218,7 @@ class ClothFrameDataset(Dataset):
             cache=cache,
             split_protocol=split_protocol,
             background_swap=background_swap,
+            texture_swap=texture_swap,
         )
         self.transform = transform
         self.index = [
@@ -185,7 +232,7 @@ class ClothFrameDataset(Dataset):
     def __getitem__(self, index: int) -> dict:
         clip, t = self.index[index]
         record, frames = self.clips.read(clip)
-        image = self.clips.swapped(clip, clip_tensor(frames[t : t + 1]), slice(t, t + 1))
+        image = self.clips.swapped(clip, frames[t : t + 1], slice(t, t + 1))
         if self.transform is not None:
             image = self.transform(image)
         return {"image": image[0], "frame": t, "clip": clip, **ClothClipDataset.targets(record)}

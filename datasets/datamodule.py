@@ -9,7 +9,7 @@ import lightning as L
 import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
-from .augment import BackgroundSwap, ClipAugment
+from .augment import BackgroundSwap, ClipAugment, TextureSwap
 from .clip_dataset import ClothClipDataset, ClothFrameDataset
 from .manifest import SPLIT_PROTOCOLS
 from .spec import check_int
@@ -36,6 +36,8 @@ class ClothVideoDataModule(L.LightningDataModule):
             (the thesis's sub-sequence split); see :data:`~datasets.manifest.SPLIT_PROTOCOLS`.
         background_swap: New backgrounds behind the training samples' cloth
             (:class:`BackgroundSwap`; ``None`` or ``prob=0`` = off).
+        texture_swap: New textures on the training samples' cloth (:class:`TextureSwap`;
+            ``None`` or ``prob=0`` = off).
     """
 
     def __init__(
@@ -51,6 +53,7 @@ class ClothVideoDataModule(L.LightningDataModule):
         cache: bool = False,
         split_protocol: str = "simulation",
         background_swap: BackgroundSwap | None = None,
+        texture_swap: TextureSwap | None = None,
     ):
         super().__init__()
         if split_protocol not in SPLIT_PROTOCOLS:
@@ -75,6 +78,7 @@ class ClothVideoDataModule(L.LightningDataModule):
         self.augment, self.verify, self.cache = augment, verify, cache
         self.split_protocol = split_protocol
         self.background_swap = background_swap
+        self.texture_swap = texture_swap
         self.datasets: dict[str, Dataset] = {}
 
     def _build(self, split: str) -> Dataset:
@@ -90,6 +94,7 @@ class ClothVideoDataModule(L.LightningDataModule):
                 cache=self.cache,
                 split_protocol=self.split_protocol,
                 background_swap=self.background_swap if split == "train" else None,
+                texture_swap=self.texture_swap if split == "train" else None,
             )
             for path in self.data_dirs
         ]

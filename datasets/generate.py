@@ -50,6 +50,7 @@ def spec_from_config(cfg: DictConfig) -> DatasetSpec:
         supersample=int(cfg.render.supersample),
         texture_size=int(cfg.texture_size),
         store_coverage=bool(cfg.render.store_coverage),
+        store_passes=bool(cfg.render.get("store_passes", False)),
         sims_per_unit=int(cfg.sims_per_unit),
         **kwargs,
     )

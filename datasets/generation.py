@@ -86,7 +86,10 @@ def simulate_unit(spec: DatasetSpec, unit: WorkUnit, cache_dir: Path | None) -> 
 
 
 def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[str, list]:
-    """Render every clip of the unit: ``{split: [(key, record, frames, coverage), ...]}``."""
+    """Render every clip of the unit: ``{split: [(key, record, frames, coverage, layers)]}``.
+
+    ``layers`` holds the render passes and the clip's background when ``store_passes``.
+    """
     renderer = _renderer(spec)
     capsules = sequence_capsules(seq)
     preset = spec.preset
@@ -105,7 +108,7 @@ def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[st
         for k in range(preset.clips_per_sim):
             start = spec.lead_in_frames + k * preset.frames_per_clip
             stop = start + preset.frames_per_clip
-            frames, coverage = renderer.render_clip(
+            frames, coverage, *passes = renderer.render_clip(
                 seq.pos[b, start:stop],
                 seq.tri_indices,
                 seq.uv,
@@ -114,13 +117,16 @@ def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[st
                 capsules=None if capsules is None else capsules[b, start:stop],
                 rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
                 coverage=True,
+                passes=spec.store_passes,
             )
             coverage = coverage if spec.store_coverage else None
+            layers = {**passes[0], "background": background[None]} if passes else None
             shard = f"{sim.split}-{unit.name}.tar"
             record = clip_record(
-                spec, sim, k, shard, frames.shape, frames_sha256(frames), coverage is not None
-            )
-            out[sim.split].append((record["key"], record, frames, coverage))
+                spec, sim, k, shard, frames.shape, frames_sha256(frames), coverage is not None,
+                passes=layers is not None,
+            )  # fmt: skip
+            out[sim.split].append((record["key"], record, frames, coverage, layers))
     return out
 
 

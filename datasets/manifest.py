@@ -76,8 +76,13 @@ def clip_record(
     frames_shape: tuple[int, ...],
     sha256: str,
     coverage: bool = False,
+    passes: bool = False,
 ) -> dict:
-    """Manifest row of one clip (also stored as the clip's ``.json`` inside its shard)."""
+    """Manifest row of one clip (also stored as the clip's ``.json`` inside its shard).
+
+    ``passes`` (render passes and background stored) is written only when true, so rows of
+    datasets made before it existed are unchanged.
+    """
     summary = class_summary(sim.class_id)
     stretch_index, bend_index = divmod(sim.class_id, len(BEND_MULTIPLIERS))
     speeds = getattr(spec.scenario, "wind_speeds", None)
@@ -110,7 +115,7 @@ def clip_record(
         "width": int(frames_shape[2]),
         "sha256": sha256,
         "coverage": bool(coverage),
-    }
+    } | ({"passes": True} if passes else {})
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,11 +4,13 @@ Why this format: a tar shard is one sequential file per work unit, the layout We
 torchdata and plain ``tar`` all read; PNG is lossless (the round trip is exact, and the
 ``compression`` visual effect stays a deliberate switch instead of a storage artefact) and
 every frame can be opened with any image viewer. A clip with key ``k`` is stored as
-``k.json`` (its manifest record), ``k.00.png`` ... ``k.09.png`` and, when the renderer's
-coverage was kept, ``k.coverage.png``: the cloth's alpha of every frame, grey, the frames
-stacked top to bottom (T * H, W), from which training can re-composite the cloth over other
-backgrounds. WebDataset groups the files of a sample by the part of the name before the
-first dot.
+``k.json`` (its manifest record), ``k.00.png`` ... ``k.09.png`` and optional *layers*, one
+PNG each with the frames stacked top to bottom (T * H, W[, 3]): ``k.coverage.png``, the
+cloth's alpha of every frame (grey), from which training can re-composite the cloth over
+other backgrounds; with render passes (``render.store_passes``) ``k.grey.png``,
+``k.black.png``, ``k.uvm.png`` (:mod:`render.passes`) and ``k.background.png`` (one image),
+from which training can re-texture the cloth. WebDataset groups the files of a sample by the
+part of the name before the first dot.
 
 Shards are built in memory and written atomically (temporary file, fsync, rename) with
 fixed tar headers (mtime 0, uid 0), so the same clips give the same bytes and a killed
@@ -32,10 +34,10 @@ from simulator.sequence import atomic_write_bytes
 __all__ = [
     "ShardError",
     "ShardReader",
-    "decode_coverage",
     "decode_frames",
-    "encode_coverage",
+    "decode_stack",
     "encode_frames",
+    "encode_stack",
     "file_sha256",
     "frames_sha256",
     "verify_shard",
@@ -90,27 +92,31 @@ def decode_frames(pngs: Iterable[bytes]) -> np.ndarray:
     return np.ascontiguousarray(np.stack(frames))
 
 
-def encode_coverage(coverage: np.ndarray) -> bytes:
-    """One grey PNG of a clip's coverage (uint8 (T, H, W)), frames stacked top to bottom."""
-    coverage = np.asarray(coverage)
-    if coverage.dtype != np.uint8 or coverage.ndim != 3:
+def encode_stack(images: np.ndarray) -> bytes:
+    """One PNG of N grey (N, H, W) or RGB (N, H, W, 3) uint8 images, stacked top to bottom."""
+    images = np.asarray(images)
+    rgb = images.ndim == 4 and images.shape[-1] == 3
+    if images.dtype != np.uint8 or not (images.ndim == 3 or rgb):
         raise ValueError(
-            f"coverage must be uint8 (T, H, W), got {coverage.dtype} {coverage.shape}"
+            f"a layer must be uint8 (N, H, W) or (N, H, W, 3), got {images.dtype} {images.shape}"
         )
+    stacked = images.reshape(-1, *images.shape[2:])
     ok, data = cv2.imencode(
-        ".png", np.ascontiguousarray(coverage.reshape(-1, coverage.shape[-1])), _PNG_PARAMS
+        ".png", np.ascontiguousarray(stacked[..., ::-1] if rgb else stacked), _PNG_PARAMS
     )
     if not ok:
         raise RuntimeError("PNG encoding failed")
     return data.tobytes()
 
 
-def decode_coverage(data: bytes, frame_count: int) -> np.ndarray:
-    """Inverse of :func:`encode_coverage`: uint8 (T, H, W)."""
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if image is None or image.shape[0] % frame_count:
-        raise ShardError(f"a coverage PNG could not be decoded into {frame_count} frames")
-    return image.reshape(frame_count, -1, image.shape[1])
+def decode_stack(data: bytes, count: int) -> np.ndarray:
+    """Inverse of :func:`encode_stack`: uint8 (count, H, W) or (count, H, W, 3)."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.shape[0] % count:
+        raise ShardError(f"a layer PNG could not be decoded into {count} images")
+    if image.ndim == 3:
+        image = image[..., ::-1]
+    return np.ascontiguousarray(image.reshape(count, -1, *image.shape[1:]))
 
 
 def _tar_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
@@ -126,8 +132,9 @@ def _tar_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
 def write_shard(path: str | Path, samples: Iterable[tuple]) -> dict:
     """Write clips as one tar shard, atomically.
 
-    Each sample is ``(key, record, frames)`` or ``(key, record, frames, coverage)`` with
-    ``coverage`` uint8 (T, H, W) or ``None``.
+    Each sample is ``(key, record, frames)``, ``(key, record, frames, coverage)`` or
+    ``(key, record, frames, coverage, layers)``: ``coverage`` uint8 (T, H, W) or ``None``,
+    ``layers`` ``{name: uint8 (N, H, W[, 3])}`` (stored as ``key.name.png``) or ``None``.
 
     Returns:
         ``{"bytes": size, "sha256": checksum, "clips": count}`` of the written file.
@@ -139,17 +146,29 @@ def write_shard(path: str | Path, samples: Iterable[tuple]) -> dict:
             if "." in key or "/" in key:
                 raise ValueError(f"clip key must not contain '.' or '/', got {key!r}")
             coverage = rest[0] if rest else None
-            if coverage is not None and np.shape(coverage) != np.shape(frames)[:3]:
-                raise ValueError(
-                    f"coverage of clip {key!r} must have shape {np.shape(frames)[:3]}, "
-                    f"got {np.shape(coverage)}"
-                )
+            layers = dict(rest[1] or {}) if len(rest) > 1 else {}
+            if coverage is not None:
+                if np.shape(coverage) != np.shape(frames)[:3]:
+                    raise ValueError(
+                        f"coverage of clip {key!r} must have shape {np.shape(frames)[:3]}, "
+                        f"got {np.shape(coverage)}"
+                    )
+                layers = {"coverage": coverage, **layers}
+            for name, layer in layers.items():
+                if not name.isidentifier() or name.isdigit():
+                    raise ValueError(f"layer name must be an identifier, got {name!r}")
+                shape = np.shape(layer)
+                if shape[1:3] != np.shape(frames)[1:3] or shape[0] not in (1, len(frames)):
+                    raise ValueError(
+                        f"layer {name!r} of clip {key!r} must be 1 or {len(frames)} images of "
+                        f"{np.shape(frames)[1:3]}, got shape {shape}"
+                    )
             meta = json.dumps(record, sort_keys=True).encode()
             _tar_member(tar, f"{key}.json", meta)
             for t, png in enumerate(encode_frames(frames)):
                 _tar_member(tar, f"{key}.{t:02d}.png", png)
-            if coverage is not None:
-                _tar_member(tar, f"{key}.coverage.png", encode_coverage(coverage))
+            for name, layer in layers.items():
+                _tar_member(tar, f"{key}.{name}.png", encode_stack(layer))
             count += 1
     data = buffer.getvalue()
     atomic_write_bytes(path, data)
@@ -220,10 +239,14 @@ class ShardReader:
             frames = decode_frames(self._read(handle, n) for n in names)
         return record, frames
 
-    def read_coverage(self, key: str, frame_count: int) -> np.ndarray | None:
-        """The clip's coverage (uint8 (T, H, W)), or ``None`` if the shard has none."""
-        name = f"{key}.coverage.png"
-        if name not in self._index():
+    def read_layer(self, key: str, name: str, count: int) -> np.ndarray | None:
+        """The clip's layer ``name`` as ``count`` images, or ``None`` if the shard has none."""
+        member = f"{key}.{name}.png"
+        if member not in self._index():
             return None
         with open(self.path, "rb") as handle:
-            return decode_coverage(self._read(handle, name), frame_count)
+            return decode_stack(self._read(handle, member), count)
+
+    def read_coverage(self, key: str, frame_count: int) -> np.ndarray | None:
+        """The clip's coverage (uint8 (T, H, W)), or ``None`` if the shard has none."""
+        return self.read_layer(key, "coverage", frame_count)

@@ -142,6 +142,10 @@ class DatasetSpec:
     store_coverage: bool = True
     """Keep the renderer's cloth coverage (alpha) of every frame in the shards, so that
     training can swap backgrounds (:class:`datasets.augment.BackgroundSwap`)."""
+    store_passes: bool = False
+    """Also keep the render passes (:mod:`render.passes`) and each clip's background, so that
+    training can re-texture the cloth (:class:`datasets.augment.TextureSwap`); rendering
+    takes four times as long and the shards grow about fourfold."""
     sims_per_unit: int = 0
     """Simulations batched into one work unit (one rollout, one set of shards); 0 = all
     classes of one simulation index."""
@@ -179,6 +183,14 @@ class DatasetSpec:
             raise ValueError(
                 f"render.store_coverage must be true or false, got {self.store_coverage!r}"
             )
+        if not isinstance(self.store_passes, bool):
+            raise ValueError(
+                f"render.store_passes must be true or false, got {self.store_passes!r}"
+            )
+        if self.store_passes and not self.store_coverage:
+            raise ValueError("render.store_passes=true needs render.store_coverage=true")
+        if self.store_passes and self.visual.frame_rate:
+            raise ValueError("render.store_passes=true needs render.effects.frame_rate=false")
         for name, cls in (
             ("preset", SizePreset),
             ("sim", SimSettings),
@@ -220,8 +232,15 @@ class DatasetSpec:
     # ------------------------------------------------------------------ identity
 
     def to_json(self) -> dict:
-        """Plain-JSON form (goes into the manifest)."""
-        return _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
+        """Plain-JSON form (goes into the manifest).
+
+        ``store_passes`` appears only when on, so datasets made before it existed keep their
+        keys (and resume).
+        """
+        out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
+        if not self.store_passes:
+            del out["store_passes"]
+        return out
 
     def physics_key(self) -> str:
         """Hash of what decides the simulated meshes (not the rendering)."""

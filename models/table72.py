@@ -11,7 +11,7 @@ under the table instead of as an empty row. ``--scenes wind,arm,armstrokes`` add
 generated with another scene of the same motion (the folder-name prefix of their
 ``out_dir``; the thesis's numbers of the motion it starts with stand beside them). Runs of a
 training variant
-(``logs/train/<dataset>[-seq]-bgswap-<method>``, ``variant=bgswap``) get rows of their own.
+(``logs/train/<dataset>[-seq]-<variant tag>-<method>``, :data:`VARIANTS`) get rows of their own.
 """
 
 from __future__ import annotations
@@ -50,7 +50,12 @@ THESIS_TABLE_72 = {
 START, END = "<!-- table72:start -->", "<!-- table72:end -->"
 PROTOCOLS = {"simulation": ("", "held-out sims"), "sequence": ("-seq", "thesis sub-seq.")}
 """Split protocol -> (run-name tag, table label); see ``datasets.manifest.SPLIT_PROTOCOLS``."""
-VARIANTS = {"": "as rendered", "-bgswap": "background swap"}
+VARIANTS = {
+    "": "as rendered",
+    "-bgswap": "background swap",
+    "-bgswap-stage2": "background swap, 2nd stage",
+    "-texswap": "texture + background swap",
+}
 """Training variant run-name tag (``configs/variant/``) -> table label."""
 
 
@@ -136,7 +141,10 @@ def render_table(
         "background, wind) was seen in training; *thesis sub-seq.*: the thesis's protocol "
         "(7.7.1), each class's clips dealt to the splits regardless of simulation, so test "
         "clips are other moments of training simulations. Training *background swap*: every "
-        "training clip re-composited over a new background (`variant=bgswap`). Thesis: "
+        "training clip re-composited over a new background (`variant=bgswap`); *2nd stage*: "
+        "a further run started from that run's best weights (`init_from`, lower learning "
+        "rate); *texture + background swap*: also re-textured with a new print "
+        "(`variant=texswap`, a dataset with `render.store_passes=true`). Thesis: "
         "Table 7.2, same motion, "
         "uniform remeshing, random texture (it has no Unif-1 row for other textures)."
     )

@@ -50,6 +50,9 @@ def _load_triton_before_mesa() -> None:
 _load_triton_before_mesa()
 
 import pyrender  # noqa: E402
+from pyrender.constants import GLTF  # noqa: E402
+
+from .passes import GREY_TEXEL, PASS_NAMES, uv_ramp_texture  # noqa: E402
 
 __all__ = ["ClothRenderer"]
 
@@ -178,6 +181,30 @@ class ClothRenderer:
             roughnessFactor=0.7,
         )
         self._capsule_meshes: dict[tuple[float, float], pyrender.Mesh] = {}
+        self._plain = {
+            name: pyrender.MetallicRoughnessMaterial(
+                baseColorTexture=pyrender.Texture(
+                    source=np.full((8, 8, 4), (value, value, value, 255), np.uint8),
+                    source_channels="RGBA",
+                ),
+                metallicFactor=0.0,
+                roughnessFactor=effects.specular_roughness if effects.specular else 1.0,
+            )
+            for name, value in (("grey", GREY_TEXEL), ("black", 0))
+        }
+        self._uv_ramp = pyrender.MetallicRoughnessMaterial(
+            baseColorTexture=pyrender.Texture(
+                source=uv_ramp_texture(),
+                source_channels="RGBA",
+                sampler=pyrender.Sampler(
+                    magFilter=GLTF.LINEAR,
+                    minFilter=GLTF.LINEAR_MIPMAP_LINEAR,
+                    wrapS=GLTF.CLAMP_TO_EDGE,
+                    wrapT=GLTF.CLAMP_TO_EDGE,
+                ),
+            ),
+            metallicFactor=0.0,
+        )
         self._renderer = pyrender.OffscreenRenderer(
             camera.width * supersample, camera.height * supersample
         )
@@ -215,6 +242,7 @@ class ClothRenderer:
         capsules: np.ndarray | None = None,
         rng: np.random.Generator,
         coverage: bool = False,
+        passes: bool = False,
     ):
         """Render one clip.
 
@@ -233,10 +261,17 @@ class ClothRenderer:
                 resolved alpha the frame was composited with, 0 = background only, 255 =
                 covered (what lets training swap the background, see
                 :class:`datasets.augment.BackgroundSwap`).
+            passes: Also render what re-texturing needs (:mod:`render.passes`): the same
+                frame with a mid-grey and with a black cloth and, unlit, the cloth's texture
+                coordinates and its own coverage (``uvm``); four renders per frame instead
+                of one. Implies ``coverage``; refused with the ``frame_rate`` effect.
 
         Returns:
             Frames, uint8 RGB, shape (K, H, W, 3) (K changes only with ``frame_rate``); with
-            ``coverage``, the pair ``(frames, coverage uint8 (K, H, W))``.
+            ``coverage``, the pair ``(frames, coverage uint8 (K, H, W))``; with ``passes``,
+            ``(frames, coverage, passes)`` with ``passes`` ``{name: uint8 (K, H, W, 3)}`` for
+            each name of :data:`render.passes.PASS_NAMES`, premultiplied by coverage like
+            the frames (nothing behind the cloth).
         """
         if self._renderer is None:
             raise RuntimeError("ClothRenderer is closed")
@@ -248,6 +283,11 @@ class ClothRenderer:
         capsules = self._check_capsules(capsules, pos.shape[0])
         streams = effect_streams(rng)
         effects = self.effects
+        if passes and effects.frame_rate:
+            raise ValueError(
+                "render passes (render.store_passes) need render.effects.frame_rate=false: "
+                "resampled frames have no passes to match"
+            )
 
         lights = self.lights
         if effects.lighting_variation:
@@ -295,6 +335,7 @@ class ClothRenderer:
         height, width = self.camera.height, self.camera.width
         frames = np.empty((frame_count, height, width, 3), np.uint8)
         alphas = np.empty((frame_count, height, width), np.uint8)
+        extra = {name: np.empty_like(frames) for name in PASS_NAMES} if passes else {}
         bg = background.astype(np.float32) if background is not None else None
         nodes: dict[str, pyrender.Node | None] = {"cloth": None}
         capsule_nodes: list[tuple[pyrender.Node, tuple[float, float]]] = []
@@ -314,11 +355,18 @@ class ClothRenderer:
                         cam_pose = cam_pose @ delta
                     self._scene.set_pose(self._camera_node, cam_pose)
                     rgba, _ = self._renderer.render(self._scene, flags=self._flags)
-                    rgba = rgba.astype(np.float32)
-                    accum = rgba if accum is None else accum + rgba
-                rgba = accum / len(times[k])
+                    layers = [rgba]
+                    if passes:
+                        layers += self._render_passes(nodes, frame_pos, geometry, bounds)
+                    layers = np.concatenate(layers, axis=-1).astype(np.float32)
+                    accum = layers if accum is None else accum + layers
+                layers = accum / len(times[k])
                 if self.supersample > 1:
-                    rgba = cv2.resize(rgba, (width, height), interpolation=cv2.INTER_AREA)
+                    layers = cv2.resize(layers, (width, height), interpolation=cv2.INTER_AREA)
+                rgba = layers[..., :4]
+                for p, name in enumerate(extra):
+                    rgb = layers[..., 4 + 3 * p : 7 + 3 * p]
+                    extra[name][k] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
                 alpha = rgba[..., 3:] / 255.0
                 # MSAA resolve averages with the transparent clear colour: rgb is premultiplied.
                 out = rgba[..., :3] if bg is None else rgba[..., :3] + (1.0 - alpha) * bg
@@ -330,6 +378,8 @@ class ClothRenderer:
             for node, _ in capsule_nodes:
                 self._scene.remove_node(node)
             self._scene.set_pose(self._camera_node, self._camera_pose)
+        if passes:
+            return (*apply_image_effects(frames, effects, streams, alphas), extra)
         return apply_image_effects(frames, effects, streams, alphas if coverage else None)
 
     def render_sequence(
@@ -470,6 +520,28 @@ class ClothRenderer:
         if nodes["cloth"] is not None:
             self._scene.remove_node(nodes["cloth"])
         nodes["cloth"] = self._scene.add(mesh)
+
+    def _render_passes(self, nodes, frame_pos, geometry, bounds) -> list[np.ndarray]:
+        """RGB of every pass of :data:`PASS_NAMES` at the current pose, in that order.
+
+        The cloth is drawn grey, then black (lit as the frame), then with the uv ramp and no
+        lighting while the arm's capsules are drawn black, so that the ramp's constant blue
+        measures the cloth's own coverage apart from the arm's. The caller's next frame sets
+        its own cloth again.
+        """
+        out = []
+        for name in ("grey", "black"):
+            self._set_cloth(nodes, frame_pos, geometry, self._plain[name], bounds)
+            out.append(self._renderer.render(self._scene, flags=self._flags)[0][..., :3])
+        self._set_cloth(nodes, frame_pos, geometry, self._uv_ramp, bounds)
+        skin = self._skin.baseColorFactor
+        self._skin.baseColorFactor = np.array([0.0, 0.0, 0.0, 1.0])
+        try:
+            flat = pyrender.RenderFlags.RGBA | pyrender.RenderFlags.FLAT
+            uvm, _ = self._renderer.render(self._scene, flags=flat)
+        finally:
+            self._skin.baseColorFactor = skin
+        return [*out, uvm[..., :3]]
 
     def _capsule_mesh(self, key: tuple[float, float]) -> pyrender.Mesh:
         mesh = self._capsule_meshes.get(key)

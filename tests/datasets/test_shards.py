@@ -6,10 +6,10 @@ import pytest
 from datasets.shards import (
     ShardError,
     ShardReader,
-    decode_coverage,
     decode_frames,
-    encode_coverage,
+    decode_stack,
     encode_frames,
+    encode_stack,
     frames_sha256,
     verify_shard,
     write_shard,
@@ -71,7 +71,7 @@ def test_bad_keys_and_frames_are_refused(tmp_path):
 def test_coverage_round_trips_and_is_optional_per_clip(tmp_path):
     clip = _clip(3)
     cover = np.random.default_rng(4).integers(0, 256, size=clip.shape[:3], dtype=np.uint8)
-    assert np.array_equal(decode_coverage(encode_coverage(cover), len(cover)), cover)
+    assert np.array_equal(decode_stack(encode_stack(cover), len(cover)), cover)
     samples = [("with", {"frame_count": 3}, clip, cover), ("without", {"frame_count": 3}, clip)]
     write_shard(tmp_path / "a.tar", samples)
     reader = ShardReader(tmp_path / "a.tar")
@@ -81,5 +81,27 @@ def test_coverage_round_trips_and_is_optional_per_clip(tmp_path):
     assert np.array_equal(reader.read("with")[1], clip)
     with pytest.raises(ValueError, match="coverage of clip 'bad'"):
         write_shard(tmp_path / "b.tar", [("bad", {"frame_count": 3}, clip, cover[:2])])
-    with pytest.raises(ValueError, match="coverage must be uint8"):
-        encode_coverage(cover.astype(np.float32))
+    with pytest.raises(ValueError, match="layer must be uint8"):
+        encode_stack(cover.astype(np.float32))
+
+
+def test_rgb_layers_round_trip_beside_coverage(tmp_path):
+    clip = _clip(2, frames=2)
+    rng = np.random.default_rng(5)
+    cover = rng.integers(0, 256, size=clip.shape[:3], dtype=np.uint8)
+    white = rng.integers(0, 256, size=clip.shape, dtype=np.uint8)
+    background = rng.integers(0, 256, size=(1, *clip.shape[1:]), dtype=np.uint8)
+    layers = {"white": white, "background": background}
+    write_shard(tmp_path / "a.tar", [("c", {"frame_count": 2}, clip, cover, layers)])
+    reader = ShardReader(tmp_path / "a.tar")
+    assert np.array_equal(reader.read_layer("c", "white", 2), white)  # RGB order kept
+    assert np.array_equal(reader.read_layer("c", "background", 1), background)
+    assert np.array_equal(reader.read_coverage("c", 2), cover)
+    assert reader.read_layer("c", "uvm", 2) is None
+    assert np.array_equal(reader.read("c")[1], clip)
+    with pytest.raises(ValueError, match="layer 'white' of clip 'd'"):
+        write_shard(tmp_path / "b.tar", [("d", {"frame_count": 2}, clip, None,
+                                          {"white": white[:, :3]})])  # fmt: skip
+    with pytest.raises(ValueError, match="layer name"):
+        write_shard(tmp_path / "b.tar", [("d", {"frame_count": 2}, clip, None, {"00": white})])
+    assert not (tmp_path / "b.tar").exists()

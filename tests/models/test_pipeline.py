@@ -66,14 +66,16 @@ def test_every_experiment_composes_and_builds_its_model(experiment):
     assert module(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
 
 
+@pytest.mark.parametrize("variant", ["bgswap", "texswap"])
 @pytest.mark.parametrize("experiment", ["wind_L1_random_base2", "arm_L1_random_cnn_lstm_ft"])
-def test_background_swap_variant_has_runs_of_its_own(experiment):
-    cfg = _compose("train", [f"experiment={experiment}", "variant=bgswap",
+def test_swap_variants_have_runs_of_their_own(experiment, variant):
+    cfg = _compose("train", [f"experiment={experiment}", f"variant={variant}",
                              "paths.output_dir=/tmp/x"], hydra=True)  # fmt: skip
-    assert cfg.run_name == f"{cfg.dataset.name}-bgswap-{cfg.model.method}"
+    assert cfg.run_name == f"{cfg.dataset.name}-{variant}-{cfg.model.method}"
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
-    assert f"/train/{cfg.dataset.name}-bgswap-base1/" in cfg.model.net.encoder_checkpoint
-    assert instantiate(cfg.data.background_swap).prob == 1.0
+    assert f"/train/{cfg.dataset.name}-{variant}-base1/" in cfg.model.net.encoder_checkpoint
+    assert instantiate(cfg.data.background_swap).prob == 1.0  # both swap backgrounds
+    assert instantiate(cfg.data.texture_swap).prob == (1.0 if variant == "texswap" else 0.0)
 
 
 def test_unknown_model_or_encoder_names_fail_clearly():
