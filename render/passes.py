@@ -33,7 +33,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["PASS_NAMES", "RAMP_SIZE", "TEXEL_ALBEDO", "retexture", "uv_ramp_texture"]
+__all__ = [
+    "PASS_NAMES",
+    "RAMP_SIZE",
+    "TEXEL_ALBEDO",
+    "retexture",
+    "srgb_to_linear",
+    "uv_ramp_texture",
+]
 
 PASS_NAMES = ("grey", "black", "uvm")
 """The stored passes, in the order the renderer returns them."""
@@ -42,11 +49,13 @@ RAMP_SIZE = 256
 """Side of the uv ramp texture: one 8-bit step per texel."""
 
 
-def _srgb_to_linear(x: np.ndarray) -> np.ndarray:
+def srgb_to_linear(x) -> np.ndarray:
+    """The sRGB decoding pyrender's shader applies to colours in [0, 1]."""
+    x = np.asarray(x, np.float64) if not isinstance(x, np.ndarray) else x
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
-TEXEL_ALBEDO = _srgb_to_linear(np.arange(256) / 255.0).astype(np.float32)
+TEXEL_ALBEDO = srgb_to_linear(np.arange(256) / 255.0).astype(np.float32)
 """Linear albedo of each uint8 texel value, as pyrender's shader decodes it."""
 
 GREY_TEXEL = 188
@@ -162,7 +171,7 @@ def retexture(
     albedo = np.stack(
         [_sample_trilinear(pyramid, mx, my) for mx, my in zip(map_x, map_y, strict=True)]
     )
-    albedo = _srgb_to_linear(albedo)  # GL filters the stored (sRGB) texels, the shader decodes
+    albedo = srgb_to_linear(albedo)  # GL filters the stored (sRGB) texels, the shader decodes
     diffuse = np.maximum(lit - dark, 0.0) / TEXEL_ALBEDO[GREY_TEXEL]
     colour = np.minimum(dark + albedo * diffuse, 1.0) ** (1.0 / OUTPUT_GAMMA)
     out = 255.0 * alpha * colour + (1.0 - alpha) * background.astype(np.float32)

@@ -52,17 +52,12 @@ _load_triton_before_mesa()
 import pyrender  # noqa: E402
 from pyrender.constants import GLTF  # noqa: E402
 
-from .passes import GREY_TEXEL, PASS_NAMES, uv_ramp_texture  # noqa: E402
+from .passes import GREY_TEXEL, PASS_NAMES, srgb_to_linear, uv_ramp_texture  # noqa: E402
 
 __all__ = ["ClothRenderer"]
 
 SKIN_RGB = (0.87, 0.68, 0.56)
 """sRGB colour of the arm capsules."""
-
-
-def _srgb_to_linear(rgb) -> np.ndarray:
-    rgb = np.asarray(rgb, np.float64)
-    return np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
 
 
 def _set_mesh_bounds(mesh: pyrender.Mesh, bounds: np.ndarray) -> None:
@@ -176,7 +171,7 @@ class ClothRenderer:
         self._light = pyrender.DirectionalLight(color=lights.color, intensity=lights.intensity)
         self._light_node = self._scene.add(self._light, pose=lights.pose(camera.pose()))
         self._skin = pyrender.MetallicRoughnessMaterial(
-            baseColorFactor=(*_srgb_to_linear(SKIN_RGB), 1.0),
+            baseColorFactor=(*srgb_to_linear(SKIN_RGB), 1.0),
             metallicFactor=0.0,
             roughnessFactor=0.7,
         )
