@@ -35,6 +35,8 @@ __all__ = [
 
 ENCODER_CHECKPOINT_KEYS = ("encoder_checkpoint", "motion_encoder_checkpoint")
 """Net config keys naming other runs' CNNs to start from; moot once a whole state dict loads."""
+ENCODER_MODULES = ("encoder", "motion_encoder")
+"""Attributes of the nets that hold frame encoders (the CNNs ``encoder_lr_scale`` applies to)."""
 
 
 def batch_input(batch: dict) -> torch.Tensor:
@@ -55,6 +57,9 @@ class MaterialClassifierModule(L.LightningModule):
         label_smoothing: Cross-entropy label smoothing.
         net_config: The net's ``_target_`` config (plain dict), kept for :func:`load_classifier`.
         method: Short method name for reports (``cnn_lstm``, ``base1``, ``base2``, ...).
+        encoder_lr_scale: The frame encoders' learning rate as a fraction of the optimizer's
+            (discriminative fine-tuning: a CNN trained beforehand keeps its features while a
+            new LSTM and classifier learn at the full rate); 1 = one rate for everything.
     """
 
     def __init__(
@@ -66,10 +71,17 @@ class MaterialClassifierModule(L.LightningModule):
         label_smoothing: float = 0.0,
         net_config: dict | None = None,
         method: str = "",
+        encoder_lr_scale: float = 1.0,
     ):
         super().__init__()
         if not 0 <= label_smoothing < 1:
             raise ValueError(f"label_smoothing must be in [0, 1), got {label_smoothing!r}")
+        if isinstance(encoder_lr_scale, bool) or not 0 < float(encoder_lr_scale) <= 1:
+            raise ValueError(
+                f"model.encoder_lr_scale must be in (0, 1] (freeze_encoder freezes), "
+                f"got {encoder_lr_scale!r}"
+            )
+        self.encoder_lr_scale = float(encoder_lr_scale)
         self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
         self.net = net
         self.optimizer_factory = optimizer
@@ -153,11 +165,30 @@ class MaterialClassifierModule(L.LightningModule):
         self.best_val_acc = float(checkpoint.get("best_val_acc", 0.0))
         self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
 
-    def configure_optimizers(self):
-        """The configured optimizer (AdamW 1e-3 by default) and optional per-epoch scheduler."""
+    def _parameter_groups(self) -> list[dict]:
+        """Trainable parameters; the encoders' in a group of their own when their rate differs."""
         params = [p for p in self.parameters() if p.requires_grad]
+        if self.encoder_lr_scale == 1.0:
+            return [{"params": params}]
+        encoders = [getattr(self.net, name, None) for name in ENCODER_MODULES]
+        in_encoder = {id(p) for m in encoders if m is not None for p in m.parameters()}
+        groups = [
+            {"params": [p for p in params if id(p) not in in_encoder]},
+            {"params": [p for p in params if id(p) in in_encoder], "encoder": True},
+        ]
+        return [g for g in groups if g["params"]]
+
+    def configure_optimizers(self):
+        """The configured optimizer (AdamW 1e-3 by default) and optional per-epoch scheduler.
+
+        The encoders' group runs at ``encoder_lr_scale`` times the optimizer's rate (set before
+        the scheduler is built, so a schedule scales both groups alike).
+        """
         factory = self.optimizer_factory or (lambda ps: torch.optim.AdamW(ps, lr=1e-3))
-        optimizer = factory(params)
+        optimizer = factory(self._parameter_groups())
+        for group in optimizer.param_groups:
+            if group.get("encoder"):
+                group["lr"] *= self.encoder_lr_scale
         if self.scheduler_factory is None:
             return optimizer
         scheduler = self.scheduler_factory(optimizer)

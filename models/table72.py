@@ -2,15 +2,16 @@
 
 ``python -m models.table72`` reads ``logs/train/<dataset>[-seq]-<method>/eval/sim_test.json``
 of the wind and arm datasets (the runs of ``configs/experiment/*_L1_random_*.yaml``; ``-seq``:
-the thesis's sub-sequence split, ``*_seq.yaml``), writes
-``reports/table72.md`` and replaces the block between ``<!-- table72:start -->`` and
-``<!-- table72:end -->`` in README.md. Missing runs show as "-"; the thesis's numbers for the
-same setting (Unif-1 / Rand1) stand beside ours. ``--arm-preset small,full`` gives a row
-per preset, ``--texture random,grid`` a row per texture; a setting without any run is listed
-under the table instead of as an empty row. ``--scenes wind,arm,armstrokes`` adds datasets
-generated with another scene of the same motion (the folder-name prefix of their
-``out_dir``; the thesis's numbers of the motion it starts with stand beside them). Runs of a
-training variant
+the thesis's sub-sequence split, ``*_seq.yaml``), copies each into the results ledger
+``reports/runs/<run name>.json`` (committed: run folders are not, so a fresh checkout rebuilds
+the same table from the ledger), writes ``reports/table72.md`` and replaces the block between
+``<!-- table72:start -->`` and ``<!-- table72:end -->`` in README.md. Missing runs show as
+"-"; the thesis's numbers for the same setting (Unif-1 / Rand1) stand beside ours.
+``--arm-preset small,full`` gives a row per preset, ``--texture random,grid`` a row per
+texture; a setting without any run is listed under the table instead of as an empty row.
+``--scenes wind,arm,armstrokes`` adds datasets generated with another scene of the same motion
+(the folder-name prefix of their ``out_dir``; the thesis's numbers of the motion it starts
+with stand beside them). Runs of a training variant
 (``logs/train/<dataset>[-seq]-<variant tag>-<method>``, :data:`VARIANTS`) get rows of their own.
 """
 
@@ -21,9 +22,9 @@ import json
 import re
 from pathlib import Path
 
-from .report import markdown_table, write_text
+from .report import markdown_table, write_json, write_text
 
-__all__ = ["METHODS", "THESIS_TABLE_72", "collect", "main", "render_table"]
+__all__ = ["METHODS", "THESIS_TABLE_72", "collect", "ledger_record", "main", "render_table"]
 
 METHODS = {
     "base1": "Base-1 (RGB-I)",
@@ -72,13 +73,35 @@ def dataset_name(motion: str, level: int, texture: str, preset: str, seed: int) 
     return f"{motion}-L{level}-{texture}-{preset}-s{seed}"
 
 
-def collect(log_dir: Path, name: str) -> dict[str, dict]:
-    """``method -> sim_test.json`` of the runs of dataset ``name`` that have one."""
+LEDGER_DROP = ("confusion",)
+"""Keys of ``sim_test.json`` the ledger leaves out (the confusion matrix stays in the run's
+PNG and JSON; the ledger keeps what tables and notes quote)."""
+
+
+def ledger_record(result: dict, run_name: str) -> dict:
+    """The ledger's copy of one run's ``sim_test.json``: every figure but the confusion matrix."""
+    record = {k: v for k, v in result.items() if k not in LEDGER_DROP}
+    record["run"] = run_name
+    return record
+
+
+def collect(log_dir: Path, name: str, ledger: Path | None = None) -> dict[str, dict]:
+    """``method -> result`` of the runs of dataset ``name``.
+
+    A run folder's ``eval/sim_test.json`` wins and refreshes its ledger entry
+    (``<ledger>/<run name>.json``); a run whose folder is gone is read from the ledger.
+    """
     found = {}
     for method in METHODS:
-        path = log_dir / "train" / f"{name}-{method}" / "eval" / "sim_test.json"
+        run = f"{name}-{method}"
+        path = log_dir / "train" / run / "eval" / "sim_test.json"
+        entry = None if ledger is None else ledger / f"{run}.json"
         if path.is_file():
-            found[method] = json.loads(path.read_text())
+            found[method] = ledger_record(json.loads(path.read_text()), run)
+            if entry is not None:
+                write_json(entry, found[method])
+        elif entry is not None and entry.is_file():
+            found[method] = json.loads(entry.read_text())
     return found
 
 
@@ -91,6 +114,7 @@ def _cell(result: dict | None) -> str:
 def render_table(
     log_dir: Path,
     *,
+    ledger: Path | None = None,
     level: int,
     textures: list[str],
     presets: dict[str, list[str]],
@@ -115,7 +139,7 @@ def render_table(
         ):
             tag = split_tag + variant_tag
             name = dataset_name(motion, level, texture, preset, seed)
-            results = collect(log_dir, name + tag)
+            results = collect(log_dir, name + tag, ledger)
             if not results:
                 if not variant_tag:
                     missing.append(f"{motion} {texture} {preset} {label}")
@@ -170,6 +194,10 @@ def main(argv: list[str] | None = None) -> str:
     """Write reports/table72.md and refresh the README block; returns the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--log-dir", type=Path, default=Path("logs"))
+    parser.add_argument(
+        "--ledger", type=Path, default=Path("reports/runs"),
+        help="committed copies of the runs' results (read when a run folder is gone)",
+    )  # fmt: skip
     parser.add_argument("--level", type=int, default=1)
     parser.add_argument("--texture", default="random", help="texture(s), a,b")
     parser.add_argument("--preset", default="full", help="preset(s) of both motions, a,b")
@@ -194,6 +222,7 @@ def main(argv: list[str] | None = None) -> str:
         parser.error(str(err))
     table = render_table(
         args.log_dir,
+        ledger=args.ledger,
         level=args.level,
         textures=args.texture.split(","),
         presets=presets,

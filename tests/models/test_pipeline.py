@@ -92,6 +92,26 @@ def test_missing_data_directory_fails_clearly(tmp_path):
         train_entry.train(cfg)
 
 
+def test_encoder_lr_scale_gives_the_cnn_its_own_rate_through_the_schedule():
+    cfg = _compose("train", ["model=cnn_lstm", "model.encoder_lr_scale=0.1",
+                             "trainer.max_epochs=4", "paths.output_dir=/tmp/x"])  # fmt: skip
+    module = instantiate(cfg.model)
+    config = module.configure_optimizers()
+    optimizer, scheduler = config["optimizer"], config["lr_scheduler"]["scheduler"]
+    rest, cnn = optimizer.param_groups
+    assert {id(p) for p in cnn["params"]} == {id(p) for p in module.net.encoder.parameters()}
+    assert len(rest["params"]) + len(cnn["params"]) == len(list(module.parameters()))
+    assert rest["lr"] == pytest.approx(2e-3) and cnn["lr"] == pytest.approx(2e-4)
+    optimizer.step()
+    scheduler.step()
+    assert cnn["lr"] / rest["lr"] == pytest.approx(0.1) and rest["lr"] < 2e-3
+    plain = instantiate(_compose("train", ["model=cnn_lstm", "paths.output_dir=/tmp/x"]).model)
+    assert len(plain.configure_optimizers()["optimizer"].param_groups) == 1
+    for bad in (0.0, 1.5, True):
+        with pytest.raises(Exception, match=r"model.encoder_lr_scale must be in \(0, 1\]"):
+            instantiate(cfg.model, encoder_lr_scale=bad)
+
+
 @pytest.mark.parametrize("model", ["cnn_lstm", "base1"])
 def test_tiny_batch_is_overfit(model):
     torch.manual_seed(0)

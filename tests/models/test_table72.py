@@ -7,10 +7,11 @@ import pytest
 from models.table72 import END, START, main
 
 
-def _report(log_dir, name, acc):
+def _report(log_dir, name, acc, **extra):
     path = log_dir / "train" / name / "eval" / "sim_test.json"
     path.parent.mkdir(parents=True)
-    path.write_text(json.dumps({"acc": acc, "top5": 0.5, "clips": 432, "device": "CPU, 2 threads"}))
+    result = {"acc": acc, "top5": 0.5, "clips": 432, "device": "CPU, 2 threads", **extra}
+    path.write_text(json.dumps(result))
 
 
 def test_table_collects_runs_and_patches_readme(tmp_path):
@@ -23,7 +24,8 @@ def test_table_collects_runs_and_patches_readme(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{START}\nold table\n{END}\noutro\n")
     out = tmp_path / "table72.md"
-    table = main(["--log-dir", str(logs), "--out", str(out), "--readme", str(readme)])
+    table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"), "--out", str(out),
+                  "--readme", str(readme)])  # fmt: skip
     wind, wind_swap, wind_seq = [
         [c.strip() for c in line.split("|")[1:-1]]
         for line in table.splitlines() if line.startswith("| wind")
@@ -48,7 +50,8 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
     _report(logs, "arm-L1-random-small-s0-seq-base1", 0.75)
     _report(logs, "arm-L1-random-full-s0-cnn_lstm_diff", 0.5)
     _report(logs, "arm-L1-grid-full-s0-cnn_lstm_diff", 0.625)
-    table = main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
+    table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
+                  "--out", str(tmp_path / "t.md"), "--no-readme",
                   "--wind-preset", "full", "--arm-preset", "small,full",
                   "--texture", "random,grid"])  # fmt: skip
     arm = [[c.strip() for c in line.split("|")[1:-1]]
@@ -68,20 +71,43 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
 def test_extra_scene_gets_rows_with_its_motions_thesis_numbers(tmp_path):
     logs = tmp_path / "logs"
     _report(logs, "armstrokes-L1-grid-full-s0-cnn_lstm_diff", 0.5)
-    table = main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
+    table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
+                  "--out", str(tmp_path / "t.md"), "--no-readme",
                   "--scenes", "arm,armstrokes", "--texture", "grid"])  # fmt: skip
     (row,) = [[c.strip() for c in line.split("|")[1:-1]]
               for line in table.splitlines() if line.startswith("| armstrokes")]  # fmt: skip
     assert row[0] == "armstrokes" and row[11] == "50.0 (50)" and row[13:] == ["-", "-", "-"]
     assert "arm grid full held-out sims" in table.split("No runs yet:")[1]
     with pytest.raises(SystemExit):
-        main(["--log-dir", str(logs), "--out", str(tmp_path / "t.md"), "--no-readme",
-              "--scenes", "flag"])  # fmt: skip
+        main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
+              "--out", str(tmp_path / "t.md"), "--no-readme", "--scenes", "flag"])  # fmt: skip
 
 
 def test_readme_without_markers_is_refused(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("no block\n")
     with pytest.raises(ValueError, match="table72:start"):
-        main(["--log-dir", str(tmp_path), "--out", str(tmp_path / "t.md"),
-              "--readme", str(readme)])  # fmt: skip
+        main(["--log-dir", str(tmp_path), "--ledger", str(tmp_path / "runs"),
+              "--out", str(tmp_path / "t.md"), "--readme", str(readme)])  # fmt: skip
+
+
+def test_ledger_keeps_the_table_when_run_folders_are_gone(tmp_path):
+    logs, ledger = tmp_path / "logs", tmp_path / "runs"
+    _report(logs, "wind-L1-random-full-s0-base1", 0.125, epochs=3, train_minutes=4.0,
+            confusion=[[1, 0], [0, 1]])  # fmt: skip
+    _report(logs, "wind-L1-random-full-s0-seq-cnn_lstm", 0.75)
+    args = ["--ledger", str(ledger), "--out", str(tmp_path / "t.md"), "--no-readme"]
+    first = main(["--log-dir", str(logs), *args])
+    entry = json.loads((ledger / "wind-L1-random-full-s0-base1.json").read_text())
+    assert entry["acc"] == 0.125 and entry["run"] == "wind-L1-random-full-s0-base1"
+    assert "confusion" not in entry
+    assert sorted(p.name for p in ledger.iterdir()) == [
+        "wind-L1-random-full-s0-base1.json",
+        "wind-L1-random-full-s0-seq-cnn_lstm.json",
+    ]
+    assert main(["--log-dir", str(tmp_path / "gone"), *args]) == first  # fresh checkout
+    _report(logs, "wind-L1-random-full-s0-cnn_lstm", 0.5)
+    _report(logs / "new", "wind-L1-random-full-s0-base1", 0.25)
+    refreshed = main(["--log-dir", str(logs / "new"), *args])  # a re-run replaces its entry
+    assert "25.0 (50)" in refreshed and "12.5 (50)" not in refreshed
+    assert json.loads((ledger / "wind-L1-random-full-s0-base1.json").read_text())["acc"] == 0.25
