@@ -6,9 +6,10 @@ the thesis's sub-sequence split, ``*_seq.yaml``), copies each into the results l
 ``reports/runs/<run name>.json`` (committed: run folders are not, so a fresh checkout rebuilds
 the same table from the ledger), writes ``reports/table72.md`` and replaces the block between
 ``<!-- table72:start -->`` and ``<!-- table72:end -->`` in README.md. Missing runs show as
-"-"; the thesis's numbers for the same setting (Unif-1 / Rand1) stand beside ours.
-``--arm-preset small,full`` gives a row per preset, ``--texture random,grid`` a row per
-texture; a setting without any run is listed under the table instead of as an empty row.
+"-"; the thesis's numbers for the same mesh level (Unif-k / Randk) stand beside ours.
+``--level 1,3`` gives a row per mesh level, ``--arm-preset small,full`` a row per preset,
+``--texture random,grid`` a row per texture; a setting without any run is listed under the
+table instead of as an empty row.
 ``--scenes wind,arm,armstrokes`` adds datasets generated with another scene of the same motion
 (the folder-name prefix of their ``out_dir``; the thesis's numbers of the motion it starts
 with stand beside them). Runs of a training variant
@@ -115,21 +116,24 @@ def render_table(
     log_dir: Path,
     *,
     ledger: Path | None = None,
-    level: int,
+    levels: list[int],
     textures: list[str],
     presets: dict[str, list[str]],
     seed: int,
 ) -> str:
     """Markdown: a row per motion, texture, preset and split that has runs.
 
-    Ours as top-1 (top-5), then the thesis's (its Table 7.2 has Unif-1 only with random texture).
+    Ours as top-1 (top-5), then the thesis's for the same mesh level (its uniform-remeshing
+    rows are random texture only). Settings without runs are listed for the first level only.
     """
     rows = []
     notes = set()
     budgets: list[str] = []
     missing: list[str] = []
-    settings = [(m, t, p) for m, names in presets.items() for t in textures for p in names]
-    for motion, texture, preset in settings:
+    settings = [(lv, m, t, p) for lv in levels for m, names in presets.items()
+                for t in textures for p in names]  # fmt: skip
+    for level, motion, texture, preset in settings:
+        mesh = f"L{level} " if len(levels) > 1 else ""
         thesis = THESIS_TABLE_72.get((thesis_motion(motion), level), (None, None, None))
         if texture != "random":
             thesis = (None, None, None)
@@ -141,8 +145,8 @@ def render_table(
             name = dataset_name(motion, level, texture, preset, seed)
             results = collect(log_dir, name + tag, ledger)
             if not results:
-                if not variant_tag:
-                    missing.append(f"{motion} {texture} {preset} {label}")
+                if not variant_tag and level == levels[0]:
+                    missing.append(f"{mesh}{motion} {texture} {preset} {label}")
                 continue
             ours = [_cell(results.get(m)) for m in METHODS]
             clips = next(r["clips"] for r in results.values())
@@ -153,8 +157,9 @@ def render_table(
                     notes.add(f"{result['device']}")
                 if "epochs" in result:
                     minutes = result.get("train_minutes", 0.0)
-                    budgets.append(f"{motion} {texture} {preset}{tag} {method} {result['epochs']} "
-                                   f"epochs / {minutes:.0f} min")  # fmt: skip
+                    setting = f"{mesh}{motion} {texture} {preset}{tag}"
+                    budgets.append(f"{setting} {method} {result['epochs']} epochs / "
+                                   f"{minutes:.0f} min")  # fmt: skip
     header = ["motion", "mesh", "texture", "preset", "split", "training", "test clips",
               *[f"ours {v}" for v in METHODS.values()],
               *[f"thesis {METHODS[m]}" for m in THESIS_METHODS]]  # fmt: skip
@@ -170,7 +175,8 @@ def render_table(
         "rate); *texture + background swap*: also re-textured with a new print "
         "(`variant=texswap`, a dataset with `render.store_passes=true`). Thesis: "
         "Table 7.2, same motion, "
-        "uniform remeshing, random texture (it has no Unif-1 row for other textures)."
+        "uniform remeshing at the row's level, random texture (its uniform-remeshing rows "
+        "have no other texture; its 66.7 / 71.8 % are the Unif-3 rows)."
     )
     if missing:
         text += " No runs yet: " + "; ".join(missing).rstrip(".") + "."
@@ -198,7 +204,7 @@ def main(argv: list[str] | None = None) -> str:
         "--ledger", type=Path, default=Path("reports/runs"),
         help="committed copies of the runs' results (read when a run folder is gone)",
     )  # fmt: skip
-    parser.add_argument("--level", type=int, default=1)
+    parser.add_argument("--level", default="1", help="mesh level(s) 1-3, a,b")
     parser.add_argument("--texture", default="random", help="texture(s), a,b")
     parser.add_argument("--preset", default="full", help="preset(s) of both motions, a,b")
     parser.add_argument("--wind-preset", default=None, help="overrides --preset for wind")
@@ -223,7 +229,7 @@ def main(argv: list[str] | None = None) -> str:
     table = render_table(
         args.log_dir,
         ledger=args.ledger,
-        level=args.level,
+        levels=[int(v) for v in args.level.split(",")],
         textures=args.texture.split(","),
         presets=presets,
         seed=args.seed,

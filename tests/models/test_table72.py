@@ -111,3 +111,21 @@ def test_ledger_keeps_the_table_when_run_folders_are_gone(tmp_path):
     refreshed = main(["--log-dir", str(logs / "new"), *args])  # a re-run replaces its entry
     assert "25.0 (50)" in refreshed and "12.5 (50)" not in refreshed
     assert json.loads((ledger / "wind-L1-random-full-s0-base1.json").read_text())["acc"] == 0.25
+
+
+def test_mesh_levels_get_rows_beside_the_thesis_row_of_their_level(tmp_path):
+    logs = tmp_path / "logs"
+    _report(logs, "wind-L1-random-full-s0-base1", 0.25, epochs=5, train_minutes=8.0)
+    _report(logs, "wind-L3-random-full-s0-base1", 0.5, epochs=5, train_minutes=9.0)
+    table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
+                  "--out", str(tmp_path / "t.md"), "--no-readme", "--scenes", "wind",
+                  "--level", "1,3"])  # fmt: skip
+    rows = [[c.strip() for c in line.split("|")[1:-1]]
+            for line in table.splitlines() if line.startswith("| wind")]  # fmt: skip
+    assert [(row[1], row[7], row[13:]) for row in rows] == [
+        ("Unif-1", "25.0 (50)", ["53.6", "53.3", "64.7"]),
+        ("Unif-3", "50.0 (50)", ["56.9", "53.0", "66.7"]),
+    ]  # fmt: skip
+    assert "L3 wind random full base1 5 epochs / 9 min" in table
+    missing = table.split("No runs yet:")[1].split("Trained on:")[0]
+    assert "L1 wind random full thesis sub-seq." in missing and "L3" not in missing
