@@ -226,10 +226,13 @@ def main(argv: list[str] | None = None) -> str:
         presets = {s: motion_presets[thesis_motion(s)] for s in args.scenes.split(",")}
     except ValueError as err:
         parser.error(str(err))
+    levels = args.level.split(",")
+    if any(v not in ("1", "2", "3") for v in levels):
+        parser.error(f"--level entries must be mesh levels 1, 2 or 3, got {args.level!r}")
     table = render_table(
         args.log_dir,
         ledger=args.ledger,
-        levels=[int(v) for v in args.level.split(",")],
+        levels=[int(v) for v in levels],
         textures=args.texture.split(","),
         presets=presets,
         seed=args.seed,

@@ -129,3 +129,6 @@ def test_mesh_levels_get_rows_beside_the_thesis_row_of_their_level(tmp_path):
     assert "L3 wind random full base1 5 epochs / 9 min" in table
     missing = table.split("No runs yet:")[1].split("Trained on:")[0]
     assert "L1 wind random full thesis sub-seq." in missing and "L3" not in missing
+    with pytest.raises(SystemExit):
+        main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
+              "--out", str(tmp_path / "t.md"), "--no-readme", "--level", "1,4"])  # fmt: skip
