@@ -61,7 +61,7 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
         ("random", "full", "held-out sims"), ("grid", "full", "held-out sims"),
     ]  # fmt: skip
     assert arm[0][7] == "25.0 (50)" and arm[2][11] == "50.0 (50)" and arm[3][11] == "62.5 (50)"
-    assert arm[2][13:] == ["54.0", "56.8", "62.9"] and arm[3][13:] == ["-", "-", "-"]
+    assert arm[2][13:] == arm[3][13:] == ["54.0", "56.8", "62.9"]  # thesis beside every texture
     assert "bgswap" not in table.split("No runs yet:")[1]  # variants are not listed as missing
     assert "arm random full thesis sub-seq." in table.split("No runs yet:")[1]
     assert "| wind" not in table and "wind grid full held-out sims" in table
@@ -76,7 +76,10 @@ def test_extra_scene_gets_rows_with_its_motions_thesis_numbers(tmp_path):
                   "--scenes", "arm,armstrokes", "--texture", "grid"])  # fmt: skip
     (row,) = [[c.strip() for c in line.split("|")[1:-1]]
               for line in table.splitlines() if line.startswith("| armstrokes")]  # fmt: skip
-    assert row[0] == "armstrokes" and row[11] == "50.0 (50)" and row[13:] == ["-", "-", "-"]
+    assert (
+        row[0] == "armstrokes" and row[11] == "50.0 (50)" and row[13:] == ["54.0", "56.8", "62.9"]
+    )
+    assert "armstrokes grid full thesis sub-seq." not in table  # extra scenes: no gap list
     assert "arm grid full held-out sims" in table.split("No runs yet:")[1]
     with pytest.raises(SystemExit):
         main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
