@@ -9,7 +9,7 @@ are dicts so that metadata travels with the pixels through ``default_collate``:
 
 plus ``label`` (class id 0..53), ``stretch_index`` (0..5), ``bend_index`` (0..8),
 ``stretch_stiffness`` [N/m], ``bend_stiffness`` [N·m], ``density`` [kg/m²], ``wind_level``
-(-1 for the arm), ``key`` (str).
+(-1 for the arm), ``clip_index`` (the clip's position in its simulation, 0 first), ``key`` (str).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ __all__ = ["ClothClipDataset", "ClothFrameDataset", "clip_tensor"]
 
 _META_KEYS = (
     "stretch_index", "bend_index", "stretch_stiffness", "bend_stiffness", "density", "wind_level",
+    "clip_index",
 )  # fmt: skip
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import csv
 import io
 import logging
-from collections import defaultdict
 from pathlib import Path
 
 import hydra
@@ -32,7 +31,7 @@ from simulator.sequence import atomic_write_bytes
 
 from .correlation import correlate
 from .material_classifier import MaterialClassifierModule, load_classifier
-from .metrics import classification_metrics, confusion_matrix
+from .metrics import BREAKDOWNS, breakdown_metrics, classification_metrics, confusion_matrix
 from .report import confusion_png, markdown_table, write_json, write_text
 from .scores import material_scores
 
@@ -107,14 +106,7 @@ def evaluate_simulated(
         **classification_metrics(logits, labels),
         **(extra or {}),
     }
-    by_wind: dict[int, list[int]] = defaultdict(list)
-    for i, m in enumerate(meta):
-        by_wind[int(m["wind_level"])].append(i)
-    if len(by_wind) > 1:
-        result["by_wind_level"] = {
-            str(level): {"clips": len(idx), **classification_metrics(logits[idx], labels[idx])}
-            for level, idx in sorted(by_wind.items())
-        }
+    result.update(breakdown_metrics(logits, labels, meta))
     out = Path(out_dir)
     matrix = confusion_matrix(labels, logits.argmax(1)).numpy()
     result["confusion"] = matrix.tolist()
@@ -125,11 +117,13 @@ def evaluate_simulated(
         result["method"], result["clips"], _pct(result["acc"]), _pct(result["top5"]),
         _pct(result["stretch_acc"]), _pct(result["bend_acc"]), f"{result['grid_mae']:.2f}",
     ]]  # fmt: skip
-    for level, sub in result.get("by_wind_level", {}).items():
-        rows.append([
-            f"wind level {level}", sub["clips"], _pct(sub["acc"]), _pct(sub["top5"]),
-            _pct(sub["stretch_acc"]), _pct(sub["bend_acc"]), f"{sub['grid_mae']:.2f}",
-        ])  # fmt: skip
+    for key, field in BREAKDOWNS.items():
+        for value, sub in result.get(key, {}).items():
+            rows.append([
+                f"{field.replace('_', ' ')} {value}", sub["clips"], _pct(sub["acc"]),
+                _pct(sub["top5"]), _pct(sub["stretch_acc"]), _pct(sub["bend_acc"]),
+                f"{sub['grid_mae']:.2f}",
+            ])  # fmt: skip
     header = ["method", "clips", "top-1 %", "top-5 %", "stretch %", "bend %", "grid MAE"]
     text = (
         f"# {Path(data_dir).name}: {split} split ({split_protocol} protocol)\n\n"
@@ -236,7 +230,7 @@ def evaluate_real(
     header = [
         "method", "input", "stiffness r [95% CI]", "density r [95% CI]", "stiffness rho",
         "density rho", "stiffness r (bend score)",
-    ]
+    ]  # fmt: skip
     thesis = [
         ["CNN+LSTM (thesis)", f"30 W{k + 1}-videos", f"{THESIS_TABLE_73['stiffness'][k]:.2f}",
          f"{THESIS_TABLE_73['density'][k]:.2f}", "", "", ""]

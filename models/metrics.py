@@ -10,7 +10,10 @@ import torch
 
 from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
 
-__all__ = ["classification_metrics", "confusion_matrix", "grid_position"]
+__all__ = [
+    "BREAKDOWNS", "breakdown_metrics", "classification_metrics", "confusion_matrix",
+    "grid_position",
+]  # fmt: skip
 
 BEND_COUNT = len(BEND_MULTIPLIERS)
 
@@ -58,3 +61,29 @@ def classification_metrics(logits: torch.Tensor, labels: torch.Tensor) -> dict[s
         "stretch_mae": stretch_err.mean().item(),
         "bend_mae": bend_err.mean().item(),
     }
+
+
+BREAKDOWNS = {"by_wind_level": "wind_level", "by_clip_index": "clip_index"}
+"""Result key -> sample field whose values get metrics of their own: the wind strength, and the
+clip's position in its simulation (the arm's first flexion is clip 0; later clips are the next
+strokes or the settling cloth)."""
+
+
+def breakdown_metrics(
+    logits: torch.Tensor, labels: torch.Tensor, meta: list[dict]
+) -> dict[str, dict[str, dict]]:
+    """:func:`classification_metrics` (and ``clips``) per value of each :data:`BREAKDOWNS` field.
+
+    A field enters the result only when the samples take more than one value of it.
+    """
+    out = {}
+    for key, field in BREAKDOWNS.items():
+        groups: dict[int, list[int]] = {}
+        for i, sample in enumerate(meta):
+            groups.setdefault(int(sample[field]), []).append(i)
+        if len(groups) > 1:
+            out[key] = {
+                str(value): {"clips": len(idx), **classification_metrics(logits[idx], labels[idx])}
+                for value, idx in sorted(groups.items())
+            }
+    return out

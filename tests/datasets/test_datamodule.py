@@ -16,6 +16,7 @@ def test_clip_and_frame_modes(tiny_dataset):
     sample = clips[0]
     assert sample["video"].shape == (4, 3, 32, 32)
     assert sample["label"] in (0, 53) and sample["stretch_index"] in (0, 5)
+    assert sample["clip_index"] == 0  # one clip per simulation in the tiny preset
     frames = ClothFrameDataset(tiny_dataset, "train")
     assert len(frames) == 8
     frame = frames[5]

@@ -6,7 +6,7 @@ import torch
 from scipy import stats
 
 from models.correlation import correlate
-from models.metrics import classification_metrics, confusion_matrix
+from models.metrics import breakdown_metrics, classification_metrics, confusion_matrix
 from models.scores import material_scores
 
 
@@ -35,6 +35,22 @@ def test_classification_metrics_by_hand():
     assert matrix.sum() == 4 and matrix[20, 0] == 1 and matrix[10, 12] == 1
     with pytest.raises(ValueError, match="logits must be"):
         classification_metrics(torch.zeros(3, 10), torch.zeros(3))
+
+
+def test_breakdown_gives_each_clip_position_its_own_metrics():
+    # two arm simulations (wind_level -1) x clips 0, 1; only the clip-0 predictions are right
+    labels = torch.tensor([0, 0, 53, 53])
+    logits = _logits([0, 5, 53, 50])
+    meta = [{"wind_level": -1, "clip_index": k} for k in (0, 1, 0, 1)]
+    out = breakdown_metrics(logits, labels, meta)
+    assert set(out) == {"by_clip_index"}  # one wind level: no wind breakdown
+    first, second = out["by_clip_index"]["0"], out["by_clip_index"]["1"]
+    assert first["clips"] == second["clips"] == 2
+    assert first["acc"] == 1.0 and second["acc"] == 0.0
+    assert second["stretch_acc"] == 1.0 and second["bend_mae"] == pytest.approx((5 + 3) / 2)
+    wind = [{"wind_level": w, "clip_index": 0} for w in (2, 0, 2, 1)]
+    assert list(breakdown_metrics(logits, labels, wind)) == ["by_wind_level"]
+    assert list(breakdown_metrics(logits, labels, wind)["by_wind_level"]) == ["0", "1", "2"]
 
 
 def test_material_scores_are_positions_in_the_stiffness_ordering():
