@@ -78,6 +78,14 @@ def _pct(value: float) -> str:
     return f"{100 * value:.1f}"
 
 
+def _metrics_row(label: str, m: dict) -> list:
+    """One row of the simulated-split report: clips, top-1/top-5, stretch, bend, grid MAE."""
+    return [
+        label, m["clips"], _pct(m["acc"]), _pct(m["top5"]), _pct(m["stretch_acc"]),
+        _pct(m["bend_acc"]), f"{m['grid_mae']:.2f}",
+    ]  # fmt: skip
+
+
 def evaluate_simulated(
     module: MaterialClassifierModule,
     data_dir: str | Path,
@@ -113,17 +121,10 @@ def evaluate_simulated(
     write_json(out / f"sim_{split}.json", result)
     title = f"{result['method']} on {Path(data_dir).name} ({split}): top-1 {_pct(result['acc'])} %"
     confusion_png(out / f"confusion_{split}.png", matrix, title)
-    rows = [[
-        result["method"], result["clips"], _pct(result["acc"]), _pct(result["top5"]),
-        _pct(result["stretch_acc"]), _pct(result["bend_acc"]), f"{result['grid_mae']:.2f}",
-    ]]  # fmt: skip
+    rows = [_metrics_row(result["method"], result)]
     for key, field in BREAKDOWNS.items():
         for value, sub in result.get(key, {}).items():
-            rows.append([
-                f"{field.replace('_', ' ')} {value}", sub["clips"], _pct(sub["acc"]),
-                _pct(sub["top5"]), _pct(sub["stretch_acc"]), _pct(sub["bend_acc"]),
-                f"{sub['grid_mae']:.2f}",
-            ])  # fmt: skip
+            rows.append(_metrics_row(f"{field.replace('_', ' ')} {value}", sub))
     header = ["method", "clips", "top-1 %", "top-5 %", "stretch %", "bend %", "grid MAE"]
     text = (
         f"# {Path(data_dir).name}: {split} split ({split_protocol} protocol)\n\n"
