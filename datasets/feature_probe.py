@@ -21,6 +21,9 @@ information lies (e.g. during the arm's flexion rather than in the drape that fo
 
     python -m datasets.feature_probe data/wind-L1-random-full-s0 --out reports/oracle
 
+``--features geometry --by-clip-index`` skips the slow image features (they decode every
+frame) and adds each clip position's class separation (:func:`class_separation`).
+
 Writes ``<name>-mlp.json`` and ``<name>-mlp.md`` (atomically) in ``--out``.
 """
 
@@ -40,7 +43,9 @@ from .geometry_oracle import FEATURES as ORACLE_FEATURES
 from .geometry_oracle import clip_geometry, clip_motion, clip_pixels, write_report
 from .manifest import SPLIT_PROTOCOLS, Manifest
 
-__all__ = ["FEATURES", "by_clip_index", "mlp_accuracy", "probe_markdown", "run_probe"]
+__all__ = [
+    "FEATURES", "by_clip_index", "class_separation", "mlp_accuracy", "probe_markdown", "run_probe",
+]  # fmt: skip
 
 FEATURES = {
     "geometry": "vertex positions of all frames",
@@ -55,18 +60,27 @@ def _per_frame(x: np.ndarray, frames: int) -> np.ndarray:
     return x.reshape(frames, -1)
 
 
-def _features(manifest: Manifest, cache_dir: str | Path) -> dict[str, dict[str, np.ndarray]]:
-    geometry = clip_geometry(manifest, cache_dir)
+def _features(
+    manifest: Manifest, cache_dir: str | Path, kinds: tuple[str, ...]
+) -> dict[str, dict[str, np.ndarray]]:
+    """The features named in ``kinds`` (pixels and motion decode every frame: the slow ones)."""
     frames = {r["key"]: int(r["frame_count"]) for r in manifest.clips}
     derived: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {
         "geometry_shape": lambda x, t: _per_frame(x, t).mean(0),
         "geometry_motion": lambda x, t: np.diff(_per_frame(x, t), axis=0).reshape(-1),
     }
-    out = {"geometry": geometry}
-    for name, fn in derived.items():
-        out[name] = {k: fn(v, frames[k]).astype(np.float32) for k, v in geometry.items()}
-    out["pixels"] = clip_pixels(manifest)
-    out["motion"] = clip_motion(manifest)
+    out = {}
+    geometry = clip_geometry(manifest, cache_dir) if any("geometry" in k for k in kinds) else {}
+    for kind in kinds:
+        if kind == "geometry":
+            out[kind] = geometry
+        elif kind in derived:
+            out[kind] = {k: derived[kind](v, frames[k]).astype(np.float32)
+                         for k, v in geometry.items()}  # fmt: skip
+        elif kind == "pixels":
+            out[kind] = clip_pixels(manifest)
+        else:
+            out[kind] = clip_motion(manifest)
     return out
 
 
@@ -132,14 +146,40 @@ def by_clip_index(
 ) -> dict[int, dict]:
     """:func:`mlp_accuracy` trained and scored on the clips of one position at a time."""
     positions = sorted({int(r["clip_index"]) for r in test})
+    out = {}
+    for k in tqdm(positions, desc="geometry MLP per clip position"):
+        train_k = [r for r in train if int(r["clip_index"]) == k]
+        test_k = [r for r in test if int(r["clip_index"]) == k]
+        out[k] = {
+            **mlp_accuracy(train_k, test_k, features, epochs=epochs),
+            **class_separation(train_k + test_k, features),
+        }
+    return out
+
+
+def class_separation(records: list[dict], features: dict[str, np.ndarray]) -> dict:
+    """How far simulations of one class scatter against how far apart the classes lie.
+
+    ``spread``: root mean square, over the clips and feature coordinates, of each clip's
+    deviation from its class mean. ``spacing``: median over classes of the root mean square
+    (per coordinate) distance from the class mean to the nearest other class mean. Both are
+    in the features' unit (metres for geometry). Where the spread exceeds the spacing, the
+    simulations of one class differ more than neighbouring classes do, and a classifier of
+    these features must read a small part of the variation (or fail on held-out ones).
+    """
+    by_class: dict[int, list[np.ndarray]] = {}
+    for r in records:
+        by_class.setdefault(int(r["class_id"]), []).append(features[r["key"]].astype(np.float64))
+    if len(by_class) < 2:
+        raise ValueError(f"class_separation needs clips of at least 2 classes, got {len(by_class)}")
+    means = {c: np.mean(x, axis=0) for c, x in by_class.items()}
+    deviations = np.concatenate([np.stack(x) - means[c] for c, x in by_class.items()])
+    centres = np.stack(list(means.values()))
+    distance = np.sqrt(((centres[:, None] - centres[None]) ** 2).mean(-1))
+    np.fill_diagonal(distance, np.inf)
     return {
-        k: mlp_accuracy(
-            [r for r in train if int(r["clip_index"]) == k],
-            [r for r in test if int(r["clip_index"]) == k],
-            features,
-            epochs=epochs,
-        )
-        for k in tqdm(positions, desc="geometry MLP per clip position")
+        "spread": float(np.sqrt((deviations**2).mean())),
+        "spacing": float(np.median(distance.min(1))),
     }
 
 
@@ -151,15 +191,22 @@ def run_probe(
     protocol: str = "simulation",
     epochs: int = 200,
     per_clip_index: bool = False,
+    kinds: tuple[str, ...] = tuple(FEATURES),
 ) -> dict:
     """An MLP per feature; writes ``<name>-mlp.json`` / ``.md``; returns ``{feature: result}``.
 
-    With ``per_clip_index`` the geometry MLP per clip position is added to both reports
-    (JSON key ``geometry_by_clip_index``).
+    ``kinds``: the features to probe (names of :data:`FEATURES`; the per-position geometry
+    MLP needs ``geometry``). With ``per_clip_index`` the geometry MLP per clip position is
+    added to both reports (JSON key ``geometry_by_clip_index``).
     """
+    unknown = [k for k in kinds if k not in FEATURES]
+    if unknown or not kinds:
+        raise ValueError(f"features must be a non-empty subset of {list(FEATURES)}, got {kinds}")
+    if per_clip_index and "geometry" not in kinds:
+        raise ValueError("the per-clip-position probe reads the geometry feature: add geometry")
     manifest = Manifest.load(data_dir)
     train, test = manifest.clips_of("train", protocol), manifest.clips_of("test", protocol)
-    features = _features(manifest, cache_dir)
+    features = _features(manifest, cache_dir, tuple(kinds))
     results = {
         kind: mlp_accuracy(train, test, x, epochs=epochs)
         for kind, x in tqdm(features.items(), desc="MLP per feature", total=len(features))
@@ -218,16 +265,20 @@ def _positions_markdown(
         return []
     rows = [
         f"| {k} | {starts[k][0]} | {starts[k][1]:.2f} | {r['clips']} | {100 * r['acc']:.1f} | "
-        f"{100 * r['stretch_acc']:.1f} | {100 * r['bend_acc']:.1f} | {100 * r['train_acc']:.1f} |"
+        f"{100 * r['stretch_acc']:.1f} | {100 * r['bend_acc']:.1f} | {100 * r['train_acc']:.1f} "
+        f"| {100 * r['spread']:.2f} | {100 * r['spacing']:.2f} |"
         for k, r in positions.items()
     ]
     return [
         "## When: the geometry MLP per clip position", "",
         "Trained and scored on clip k of every simulation only (fewer training clips than the "
-        "table above).", "",
+        "table above). *Spread*: how far one class's clips scatter about their class mean; "
+        "*spacing*: how far a class mean lies from the nearest other one (rms per vertex "
+        "coordinate, cm, all clips of the position; `class_separation`). A spread above the "
+        "spacing means simulations of one class differ more than neighbouring classes do.", "",
         "| clip | first frame | at [s] | test clips | top-1 % | stretch % | bend % "
-        "| train fit % |",
-        "|---|---|---|---|---|---|---|---|", *rows, "",
+        "| train fit % | spread cm | spacing cm |",
+        "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
     ]  # fmt: skip
 
 
@@ -243,12 +294,21 @@ def main(argv: list[str] | None = None) -> dict:
         "--by-clip-index", action="store_true",
         help="also the geometry MLP per clip position in the recording",
     )  # fmt: skip
+    parser.add_argument(
+        "--features", default=",".join(FEATURES),
+        help=f"comma-separated subset of {','.join(FEATURES)} (default: all)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     if args.epochs < 1:
         parser.error(f"--epochs must be >= 1, got {args.epochs}")
+    kinds = tuple(k for k in args.features.split(",") if k)
+    if not kinds or any(k not in FEATURES for k in kinds):
+        parser.error(f"--features must be a subset of {','.join(FEATURES)}, got {args.features!r}")
+    if args.by_clip_index and "geometry" not in kinds:
+        parser.error("--by-clip-index reads the geometry feature: add geometry to --features")
     results = run_probe(
         args.data_dir, args.mesh_cache, args.out, protocol=args.protocol, epochs=args.epochs,
-        per_clip_index=args.by_clip_index,
+        per_clip_index=args.by_clip_index, kinds=kinds,
     )  # fmt: skip
     for kind, r in results.items():
         print(

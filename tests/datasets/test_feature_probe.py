@@ -5,7 +5,15 @@ import json
 import numpy as np
 import pytest
 
-from datasets.feature_probe import FEATURES, by_clip_index, main, mlp_accuracy, probe_markdown
+from datasets.feature_probe import (
+    FEATURES,
+    by_clip_index,
+    class_separation,
+    main,
+    mlp_accuracy,
+    probe_markdown,
+    run_probe,
+)
 
 from .test_split_protocol import _manifest
 
@@ -44,6 +52,23 @@ def test_probe_command_writes_json_and_markdown(tiny_dataset, tmp_path):
     assert "sqrt \\|grey frame difference\\|" in text  # pipes escaped inside the table
     with pytest.raises(SystemExit):
         main([str(tiny_dataset), "--epochs", "0"])
+    for bad in (["--features", "geometry,colour"], ["--features", "pixels", "--by-clip-index"]):
+        with pytest.raises(SystemExit):
+            main([str(tiny_dataset), *bad])
+    with pytest.raises(ValueError, match="subset"):
+        run_probe(tiny_dataset, tiny_dataset / "meshes", tmp_path, kinds=("colour",))
+
+
+@pytest.mark.render
+def test_geometry_only_probe_per_clip_position(tiny_dataset, tmp_path):
+    results = main([str(tiny_dataset), "--mesh-cache", str(tiny_dataset / "meshes"),
+                    "--out", str(tmp_path), "--epochs", "2", "--features", "geometry",
+                    "--by-clip-index"])  # fmt: skip
+    assert set(results) == {"geometry"}
+    stored = json.loads((tmp_path / f"{tiny_dataset.name}-mlp.json").read_text())
+    positions = stored["geometry_by_clip_index"]
+    assert positions and all(r["spread"] >= 0 and r["spacing"] > 0 for r in positions.values())
+    assert "spread cm" in (tmp_path / f"{tiny_dataset.name}-mlp.md").read_text()
 
 
 def test_per_clip_position_reads_the_position_that_carries_the_class():
@@ -63,10 +88,29 @@ def test_per_clip_position_reads_the_position_that_carries_the_class():
     assert sorted(results) == positions
     assert results[informative]["acc"] == 1.0
     assert all(results[k]["acc"] < 0.8 for k in positions if k != informative)
+    assert results[informative]["spacing"] > results[informative]["spread"]
+    assert all(results[k]["spacing"] < results[k]["spread"] for k in positions if k != informative)
+
+
+def test_class_separation_on_known_clouds():
+    """Class c's clips lie at c * d + (+-a) on every coordinate: spread a, spacing d."""
+    a, d = 0.25, 2.0
+    records, features = [], {}
+    for c in (0, 1, 2):
+        for sign in (-1.0, 1.0):
+            key = f"{c}{sign}"
+            records.append({"key": key, "class_id": c})
+            features[key] = np.full(6, c * d + sign * a, np.float32)
+    result = class_separation(records, features)
+    assert result["spread"] == pytest.approx(a)
+    assert result["spacing"] == pytest.approx(d)
+    with pytest.raises(ValueError, match="at least 2 classes"):
+        class_separation(records[:2], features)
 
 
 def test_positions_table_lists_each_clip_start():
     result = {"clips": 4, "acc": 0.5, "stretch_acc": 0.75, "bend_acc": 0.5, "train_acc": 1.0}
-    text = probe_markdown("d", "simulation", 2, {"geometry": result}, {0: result, 1: result},
+    position = {**result, "spread": 0.0052, "spacing": 0.0024}
+    text = probe_markdown("d", "simulation", 2, {"geometry": result}, {0: position, 1: position},
                           {0: (0, 0.0), 1: (10, 10 / 15)})  # fmt: skip
-    assert "| 1 | 10 | 0.67 | 4 | 50.0 | 75.0 | 50.0 | 100.0 |" in text
+    assert "| 1 | 10 | 0.67 | 4 | 50.0 | 75.0 | 50.0 | 100.0 | 0.52 | 0.24 |" in text
