@@ -69,19 +69,28 @@ def _features(
         "geometry_shape": lambda x, t: _per_frame(x, t).mean(0),
         "geometry_motion": lambda x, t: np.diff(_per_frame(x, t), axis=0).reshape(-1),
     }
+    images = {"pixels": clip_pixels, "motion": clip_motion}
+    needs_geometry = any(kind not in images for kind in kinds)
+    geometry = clip_geometry(manifest, cache_dir) if needs_geometry else {}
     out = {}
-    geometry = clip_geometry(manifest, cache_dir) if any("geometry" in k for k in kinds) else {}
     for kind in kinds:
-        if kind == "geometry":
-            out[kind] = geometry
+        if kind in images:
+            out[kind] = images[kind](manifest)
         elif kind in derived:
             out[kind] = {k: derived[kind](v, frames[k]).astype(np.float32)
                          for k, v in geometry.items()}  # fmt: skip
-        elif kind == "pixels":
-            out[kind] = clip_pixels(manifest)
         else:
-            out[kind] = clip_motion(manifest)
+            out[kind] = geometry
     return out
+
+
+def _kinds_error(kinds: tuple[str, ...], per_clip_index: bool) -> str | None:
+    """Why ``kinds`` (with or without the per-position probe) cannot be probed, or ``None``."""
+    if not kinds or any(k not in FEATURES for k in kinds):
+        return f"features must be a non-empty subset of {','.join(FEATURES)}, got {kinds}"
+    if per_clip_index and "geometry" not in kinds:
+        return "the per-clip-position probe reads the geometry feature: add geometry"
+    return None
 
 
 def mlp_accuracy(
@@ -199,11 +208,8 @@ def run_probe(
     MLP needs ``geometry``). With ``per_clip_index`` the geometry MLP per clip position is
     added to both reports (JSON key ``geometry_by_clip_index``).
     """
-    unknown = [k for k in kinds if k not in FEATURES]
-    if unknown or not kinds:
-        raise ValueError(f"features must be a non-empty subset of {list(FEATURES)}, got {kinds}")
-    if per_clip_index and "geometry" not in kinds:
-        raise ValueError("the per-clip-position probe reads the geometry feature: add geometry")
+    if (error := _kinds_error(tuple(kinds), per_clip_index)) is not None:
+        raise ValueError(error)
     manifest = Manifest.load(data_dir)
     train, test = manifest.clips_of("train", protocol), manifest.clips_of("test", protocol)
     features = _features(manifest, cache_dir, tuple(kinds))
@@ -302,10 +308,8 @@ def main(argv: list[str] | None = None) -> dict:
     if args.epochs < 1:
         parser.error(f"--epochs must be >= 1, got {args.epochs}")
     kinds = tuple(k for k in args.features.split(",") if k)
-    if not kinds or any(k not in FEATURES for k in kinds):
-        parser.error(f"--features must be a subset of {','.join(FEATURES)}, got {args.features!r}")
-    if args.by_clip_index and "geometry" not in kinds:
-        parser.error("--by-clip-index reads the geometry feature: add geometry to --features")
+    if (error := _kinds_error(kinds, args.by_clip_index)) is not None:
+        parser.error(f"--features: {error}")
     results = run_probe(
         args.data_dir, args.mesh_cache, args.out, protocol=args.protocol, epochs=args.epochs,
         per_clip_index=args.by_clip_index, kinds=kinds,
