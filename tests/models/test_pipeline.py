@@ -214,6 +214,21 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     assert "Table 7.3" in (out / "real.md").read_text()
 
 
+def test_one_config_and_seed_train_the_same_weights(model_dataset, tmp_path):
+    """Two runs of one config give bit-identical weights, with the random parts switched on:
+    a loader worker process, colour/crop augmentation and background swap every sample."""
+    random_parts = ("data.num_workers=1", "data.background_swap.prob=1.0")
+    nets = []
+    for name in ("first", "second"):
+        run = tmp_path / "train" / name
+        train_entry.train(_train_cfg(model_dataset, run, *random_parts, log_dir=tmp_path))
+        nets.append(torch.load(run / "checkpoints" / "last.ckpt", weights_only=False))
+    first, second = (n["state_dict"] for n in nets)
+    assert first.keys() == second.keys()
+    for key, value in first.items():
+        torch.testing.assert_close(second[key], value, rtol=0, atol=0, msg=key)
+
+
 def test_evaluation_errors_name_the_problem(model_dataset, real_folder, tmp_path):
     with pytest.raises(ValueError, match=r"data_dir .* and/or real_dir"):
         evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt"]))
