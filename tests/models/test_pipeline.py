@@ -218,12 +218,13 @@ def test_one_config_and_seed_train_the_same_weights(model_dataset, tmp_path):
     """Two runs of one config give bit-identical weights, with the random parts switched on:
     a loader worker process, colour/crop augmentation and background swap every sample."""
     random_parts = ("data.num_workers=1", "data.background_swap.prob=1.0")
-    nets = []
+    weights = []
     for name in ("first", "second"):
         run = tmp_path / "train" / name
         train_entry.train(_train_cfg(model_dataset, run, *random_parts, log_dir=tmp_path))
-        nets.append(torch.load(run / "checkpoints" / "last.ckpt", weights_only=False))
-    first, second = (n["state_dict"] for n in nets)
+        checkpoint = torch.load(run / "checkpoints" / "last.ckpt", weights_only=False)
+        weights.append(checkpoint["state_dict"])
+    first, second = weights
     assert first.keys() == second.keys()
     for key, value in first.items():
         torch.testing.assert_close(second[key], value, rtol=0, atol=0, msg=key)
