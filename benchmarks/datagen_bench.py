@@ -28,6 +28,7 @@ from datasets.generation import generate_dataset, simulate_unit
 from datasets.plan import plan_units
 from render.backgrounds import make_background
 from render.textures import make_texture
+from simulator.threads import use_process_threads
 
 CONFIGS = str(Path(__file__).resolve().parents[1] / "configs")
 
@@ -74,6 +75,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--jobs", type=int, default=2, help="parallel workers")
     parser.add_argument("--rounds", type=int, default=1, help="units per worker to time")
     args = parser.parse_args(argv)
+    use_process_threads(1)  # as every simulating process (the workers set their own)
     spec = _spec(args.level, "full")
     fps = render_fps(spec)
     print(f"render: {fps:.0f} frames/s at {spec.camera.width}x{spec.camera.height} (1 process)")

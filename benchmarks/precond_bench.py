@@ -32,6 +32,7 @@ from simulator.model import SimControl, SimModel, SimState
 from simulator.solvers.block_sparse import BlockSparse
 from simulator.solvers.cg import conjugate_gradient
 from simulator.solvers.coarse import TwoLevelPreconditioner, grid_aggregates
+from simulator.threads import use_process_threads
 
 
 @dataclasses.dataclass
@@ -199,10 +200,9 @@ def main() -> None:
     parser.add_argument("--rtols", default="1e-2,1e-4")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (0: one per core)")
     args = parser.parse_args()
-    if args.threads > 0:
-        torch.set_num_threads(args.threads)
+    use_process_threads(args.threads or None)
     rtols = [float(r) for r in args.rtols.split(",")]
     base = build_problem()
     total = base.rhs.shape[0]

@@ -10,7 +10,9 @@ vertices, same pins, membrane stiffness and bending of the single instance's
 class, wind, duration, 5 ms step, ``integrator="discrete"``, Newton) and the
 script prints the ratio. Medians over ``--repeats``.
 
-Usage: ``python -m benchmarks.sim_bench [--repeats 3] [--batch-repeats 1] [--dtype float64]``.
+Usage: ``python -m benchmarks.sim_bench [--repeats 3] [--batch-repeats 1] [--dtype float64]
+[--threads 1]`` (one torch thread by default, as every simulating process; see
+:mod:`simulator.threads`).
 The last line is JSON.
 """
 
@@ -28,6 +30,7 @@ from simulator.integrators import IntegratorBackwardEuler, solve_static
 from simulator.material import ClothMaterial, class_summary
 from simulator.scenario import ScenarioWind
 from simulator.solvers import NewtonSettings
+from simulator.threads import use_process_threads
 
 DT = 0.005
 DURATION = 2.0
@@ -90,7 +93,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--batch-repeats", type=int, default=1)
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
     parser.add_argument("--skip-batch", action="store_true")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (0: one per core)")
     args = parser.parse_args(argv)
+    use_process_threads(args.threads or None)
     dtype = getattr(torch, args.dtype)
     settings = NewtonSettings(max_iters=1, cg_rtol=1e-2, cg_max_iters=200)
     verts = 32 * 32

@@ -13,10 +13,12 @@ import json
 from simulator.inverse.benchmark_pso import run_pso_benchmark
 from simulator.inverse.ukf_experiments import run_ukf_benchmark
 from simulator.monocular.benchmark import run_mono_benchmark
+from simulator.threads import use_process_threads
 
 
 def main() -> dict:
     """Run the three benchmarks and print the summary JSON line."""
+    use_process_threads(1)
     pso = run_pso_benchmark()
     print("PSO:", json.dumps(pso))
     ukf = run_ukf_benchmark()

@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from render.effects import VisualEffects
 from simulator.effects import PhysicsEffects
+from simulator.threads import use_process_threads
 
 from .generation import generate_dataset
 from .spec import MOTIONS, DatasetSpec
@@ -59,6 +60,7 @@ def spec_from_config(cfg: DictConfig) -> DatasetSpec:
 def run(cfg: DictConfig):
     """Generate (or resume) the configured dataset; returns the manifest or ``None``."""
     spec = spec_from_config(cfg)
+    use_process_threads(int(cfg.threads_per_job), name="threads_per_job")
     return generate_dataset(
         spec,
         cfg.out_dir,

@@ -16,12 +16,14 @@ from omegaconf import DictConfig
 from simulator.effects import PhysicsEffects
 from simulator.material import ClothMaterial, class_summary
 from simulator.rollout import simulate
+from simulator.threads import use_process_threads
 
 log = logging.getLogger(__name__)
 
 
 def run(cfg: DictConfig):
     """Simulate ``cfg.classes`` and return the saved :class:`MeshSequence`."""
+    use_process_threads(cfg.get("threads", 1), name="threads")
     classes = [int(c) for c in cfg.classes]
     material = ClothMaterial.from_classes(classes)
     scenario = instantiate(cfg.scenario)

@@ -1,0 +1,76 @@
+"""One torch thread per simulating process: the thread count that survives a busy CPU.
+
+The solver runs thousands of small tensor operations per step. With torch's default (one
+OpenMP thread per core), every one of them is a parallel region whose threads spin-wait for
+each other; when another process holds a core, the waiting thread is descheduled and each
+region stalls for a scheduler slice. Measured on a 2-core machine (issue 26): a 32 x 32 wind
+cloth took 99 s instead of 9.6 s beside a second process with two threads, and 10.8 s with
+one thread (``python -m benchmarks.thread_load_bench`` repeats the measurement). A second
+thread gains only 3-14 % on a quiet machine, so simulating processes use one by default and
+parallelism comes from processes (joblib workers, Hydra launchers), one thread each.
+
+Entry points call :func:`use_process_threads` once; library code that needs a fixed count for
+a block (e.g. to fix the bytes a worker writes) uses :func:`torch_threads`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+
+import torch
+
+__all__ = [
+    "SIM_THREADS",
+    "THREAD_ENV_VARS",
+    "check_threads",
+    "torch_threads",
+    "use_process_threads",
+]
+
+SIM_THREADS = 1
+"""Default torch intra-op threads of a simulating process."""
+
+THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+"""Thread-pool sizes that child processes (joblib workers) read when they start."""
+
+
+def check_threads(value, name: str = "threads") -> int | None:
+    """``value`` as an int >= 1, or ``None`` (leave torch's count alone); else a ValueError."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be an integer >= 1 or null (torch's default), got {value!r}")
+    return value
+
+
+def use_process_threads(threads: int | None = SIM_THREADS, *, name: str = "threads") -> None:
+    """Set this process's torch intra-op threads and its children's thread-pool variables.
+
+    Args:
+        threads: Threads per process; ``None`` leaves torch's default (one per core).
+        name: Config field named in the error for a bad value.
+    """
+    threads = check_threads(threads, name)
+    if threads is None:
+        return
+    torch.set_num_threads(threads)
+    for var in THREAD_ENV_VARS:
+        os.environ[var] = str(threads)
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int | None, *, name: str = "threads") -> Iterator[None]:
+    """Run the block with ``threads`` torch intra-op threads, then restore the previous count.
+
+    ``None`` leaves the count unchanged.
+    """
+    threads = check_threads(threads, name)
+    previous = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)

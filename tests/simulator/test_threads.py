@@ -1,0 +1,39 @@
+"""Thread settings of simulating processes (simulator/threads.py)."""
+
+import os
+
+import pytest
+import torch
+
+from simulator.threads import THREAD_ENV_VARS, check_threads, torch_threads, use_process_threads
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])
+def test_bad_thread_counts_name_the_field(bad):
+    with pytest.raises(ValueError, match="threads_per_job must be an integer >= 1 or null"):
+        check_threads(bad, "threads_per_job")
+
+
+def test_torch_threads_restores_the_previous_count():
+    torch.set_num_threads(2)
+    with torch_threads(1):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == 2
+    with pytest.raises(RuntimeError), torch_threads(1):
+        raise RuntimeError("boom")
+    assert torch.get_num_threads() == 2
+    with torch_threads(None):
+        assert torch.get_num_threads() == 2
+
+
+def test_use_process_threads_sets_torch_and_the_children_env(monkeypatch):
+    for var in THREAD_ENV_VARS:
+        monkeypatch.setenv(var, "7")  # recorded, so the test's writes are undone afterwards
+        monkeypatch.delenv(var)
+    torch.set_num_threads(2)
+    use_process_threads(1)
+    assert torch.get_num_threads() == 1
+    assert all(os.environ[var] == "1" for var in THREAD_ENV_VARS)
+    torch.set_num_threads(2)
+    use_process_threads(None)  # null: torch's default stays
+    assert torch.get_num_threads() == 2
