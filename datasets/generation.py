@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from render.backgrounds import make_background
 from render.capsules import sequence_capsules
@@ -26,6 +25,7 @@ from render.textures import make_texture
 from simulator.material import ClothMaterial
 from simulator.rollout import simulate
 from simulator.sequence import MeshSequence
+from simulator.threads import torch_threads
 
 from .manifest import Manifest, clip_record, read_json, write_json
 from .plan import WorkUnit, plan_units
@@ -134,13 +134,9 @@ def run_unit(
     spec: DatasetSpec, unit: WorkUnit, out_dir: Path, cache_dir: Path | None, threads: int
 ) -> dict:
     """Simulate, render and write one unit; returns its index (also written to disk)."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)  # part of what fixes the bytes
     start = time.perf_counter()
-    try:
+    with torch_threads(threads, name="threads_per_job"):  # part of what fixes the bytes
         seq = simulate_unit(spec, unit, cache_dir)
-    finally:
-        torch.set_num_threads(previous)
     sim_seconds = time.perf_counter() - start
     rendered = render_unit(spec, unit, seq)
     shards, clips = [], []

@@ -5,6 +5,8 @@ import os
 import pytest
 import torch
 
+from simulator.threads import torch_threads
+
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 RTOL = 1e-6
@@ -25,7 +27,5 @@ def assert_close(actual, expected, name, *, rtol=RTOL, atol=ATOL):
 @pytest.fixture(autouse=True)
 def _single_thread():
     """Tests are small: one intra-op thread avoids oversubscription on 2-core CI."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+    with torch_threads(1):
+        yield

@@ -23,6 +23,7 @@ import time
 import numpy as np
 import torch
 
+from ..threads import torch_threads
 from .ukf import UKFSettings, UnscentedKalmanFilter, estimate_sequence
 from .ukf_body import (
     BEAM_CELLS,
@@ -220,14 +221,10 @@ def run_ukf_benchmark(seed: int = 0) -> dict:
         Young's modulus (fraction; the thesis's "within 7.5 %" is 0.075), plus
         ``ukf_rel_err_mean``, ``ukf_ball_rel_err`` (fractions) and ``ukf_minutes``.
     """
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     tic = time.perf_counter()
-    try:
+    with torch_threads(1):
         rows = ukf_table41(seed=seed, trials=3)
         ball = ukf_dropped_ball(seed=seed)
-    finally:
-        torch.set_num_threads(threads)
     return {
         "ukf_rel_err": max(r["avg_rel_err_pct"] for r in rows) / 100.0,
         "ukf_rel_err_mean": statistics.mean(r["avg_rel_err_pct"] for r in rows) / 100.0,

@@ -23,6 +23,7 @@ import statistics
 import torch
 
 from ..solvers.newton import NewtonSettings
+from ..threads import torch_threads
 from .features import locate_features, select_features
 from .reconstruct import DEFAULT_SETTINGS, ElasticModelKind, MonocularReconstructor
 from .sheet import crossed_grid, edge_vertices, element_count_to_cells
@@ -164,13 +165,9 @@ def run_mono_benchmark(elements: int = 1600, seed: int = 0) -> dict:
         ``mono_fps_<elements>`` [frames/s] and ``mono_mean_err_mm`` (clean tracks), plus
         ``mono_rms_err_mm`` and the noisy/occluded ``mono_mean_err_noisy_mm``.
     """
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):
         clean = mono_case(elements, "stvk", CONDITIONS["clean"], seed=seed, repeats=3)
         noisy = mono_case(elements, "stvk", CONDITIONS["noisy"], seed=seed)
-    finally:
-        torch.set_num_threads(threads)
     return {
         f"mono_fps_{elements}": clean["fps"],
         "mono_mean_err_mm": clean["mean_err_mm"],
@@ -189,10 +186,8 @@ def mono_table(
     repeats: int = 3,
 ) -> list[dict]:
     """Every (elements, model, condition) row, single-threaded; fps median of ``repeats``."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     rows = []
-    try:
+    with torch_threads(1):
         for n in elements:
             for model in models:
                 for name in conditions:
@@ -210,6 +205,4 @@ def mono_table(
                 repeats=repeats,
             )
             rows.append({"condition": "clean", **row})
-    finally:
-        torch.set_num_threads(threads)
     return rows

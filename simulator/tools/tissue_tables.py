@@ -34,6 +34,7 @@ from simulator.inverse.multiregion import MultiRegionObjective, recover_regions
 from simulator.meshing import REGION_TISSUE, organ_scene, sphere_in_cube
 from simulator.model import SimControl, SimModel, SimState
 from simulator.solvers.newton import NewtonSettings
+from simulator.threads import torch_threads
 from simulator.tissue import (
     MATERIALS,
     OrganForwardModel,
@@ -304,13 +305,11 @@ def run(
         raise ValueError(f"material must be one of {MATERIALS}, got {material!r}")
     t31 = _select(THESIS_T31["ratio"], ratios, "ratios")
     t32 = _select(THESIS_T32["tumour_kpa"], tumour_kpa, "tumour_kpa")
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     kw = {"tet_target": tet_target, "material": material, "max_iters": max_iters, "seed": seed}
     tables: dict[str, list[dict]] = {}
-    try:
+    with torch_threads(threads):
         for name, selected in (("t31", t31), ("t32", t32)):
             if name in only:
                 tables[name] = _table(out, name, selected, kw)
@@ -321,8 +320,6 @@ def run(
             _plot_sensitivity(out / "sensitivity.png", rows)
             print(json.dumps({"sensitivity_seconds": time.perf_counter() - start}), flush=True)
             tables["sens"] = rows
-    finally:
-        torch.set_num_threads(previous)
     return tables
 
 

@@ -17,7 +17,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-import torch
 
 from simulator.inverse.ukf_body import INTEGRATORS
 from simulator.inverse.ukf_experiments import (
@@ -27,6 +26,7 @@ from simulator.inverse.ukf_experiments import (
     ukf_table41,
 )
 from simulator.sequence import atomic_write_bytes
+from simulator.threads import torch_threads
 from simulator.tools.outputs import save_png, write_csv
 
 
@@ -112,9 +112,7 @@ def run(
     ball: bool = True,
 ) -> tuple[list[dict], dict | None]:
     """Run the Table 4.1 sweep (and the dropped ball) single-threaded; write into ``out``."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):
         rows = ukf_table41(
             seed=seed,
             trials=trials,
@@ -127,8 +125,6 @@ def run(
             truth_mesh_refine=truth_mesh_refine,
         )
         dropped = ukf_dropped_ball(seed=seed) if ball else None
-    finally:
-        torch.set_num_threads(threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "ukf.csv", rows)
