@@ -28,11 +28,19 @@ from simulator.sequence import MeshSequence
 from simulator.threads import torch_threads
 
 from .manifest import Manifest, clip_record, read_json, write_json
-from .plan import WorkUnit, plan_units
+from .plan import SimulationPlan, WorkUnit, plan_units
 from .shards import ShardError, frames_sha256, verify_shard, write_shard
 from .spec import SPLITS, DatasetSpec, check_int
 
-__all__ = ["generate_dataset", "render_unit", "run_unit", "simulate_unit"]
+__all__ = [
+    "generate_dataset",
+    "render_frames",
+    "render_unit",
+    "renderer_for",
+    "run_unit",
+    "sim_look",
+    "simulate_unit",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +49,8 @@ _RENDERER: dict = {}
 """One renderer per process (an EGL context does not survive fork), keyed by its settings."""
 
 
-def _renderer(spec: DatasetSpec):
+def renderer_for(spec: DatasetSpec):
+    """This process's :class:`render.renderer.ClothRenderer` for ``spec``'s render settings."""
     from render.renderer import ClothRenderer
 
     key = (spec.camera, spec.lights, spec.visual, spec.supersample)
@@ -85,40 +94,66 @@ def simulate_unit(spec: DatasetSpec, unit: WorkUnit, cache_dir: Path | None) -> 
     return seq
 
 
+def sim_look(spec: DatasetSpec, sim: SimulationPlan) -> tuple[np.ndarray, np.ndarray]:
+    """The simulation's cloth texture (uint8 (s, s, 3)) and background (uint8 (H, W, 3)).
+
+    Both come from the simulation's seed alone, so every rendering of it (a dataset clip, a
+    sim-to-real candidate set) shows the same cloth in front of the same background.
+    """
+    texture = make_texture(
+        spec.texture_mode, np.random.default_rng([sim.seed, _TEXTURE_STREAM]), spec.texture_size
+    )
+    background = make_background(
+        np.random.default_rng([sim.seed, _BACKGROUND_STREAM]), spec.camera.width, spec.camera.height
+    )
+    return texture, background
+
+
+def render_frames(
+    spec: DatasetSpec,
+    seq: MeshSequence,
+    b: int,
+    sim: SimulationPlan,
+    start: int,
+    stop: int,
+    *,
+    rng: np.random.Generator,
+    capsules: np.ndarray | None = None,
+    look: tuple[np.ndarray, np.ndarray] | None = None,
+    passes: bool = False,
+):
+    """Render frames ``[start, stop)`` of instance ``b`` of ``seq`` as ``spec`` renders them.
+
+    Returns ``(frames, coverage[, passes])`` as :meth:`render.renderer.ClothRenderer.
+    render_clip` does; ``look`` is the simulation's (texture, background) when the caller
+    has it already (default: :func:`sim_look`), ``capsules`` the whole sequence's arm
+    capsules (:func:`render.capsules.sequence_capsules`).
+    """
+    texture, background = look if look is not None else sim_look(spec, sim)
+    return renderer_for(spec).render_clip(
+        seq.pos[b, start:stop], seq.tri_indices, seq.uv, texture, background,
+        capsules=None if capsules is None else capsules[b, start:stop],
+        rng=rng, coverage=True, passes=passes,
+    )  # fmt: skip
+
+
 def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[str, list]:
     """Render every clip of the unit: ``{split: [(key, record, frames, coverage, layers)]}``.
 
     ``layers`` holds the render passes and the clip's background when ``store_passes``.
     """
-    renderer = _renderer(spec)
     capsules = sequence_capsules(seq)
     preset = spec.preset
     out: dict[str, list] = {split: [] for split in SPLITS}
     for b, sim in enumerate(unit.sims):
-        texture = make_texture(
-            spec.texture_mode,
-            np.random.default_rng([sim.seed, _TEXTURE_STREAM]),
-            spec.texture_size,
-        )
-        background = make_background(
-            np.random.default_rng([sim.seed, _BACKGROUND_STREAM]),
-            spec.camera.width,
-            spec.camera.height,
-        )
+        texture, background = sim_look(spec, sim)
         for k in range(preset.clips_per_sim):
             start = spec.lead_in_frames + k * preset.frames_per_clip
             stop = start + preset.frames_per_clip
-            frames, coverage, *passes = renderer.render_clip(
-                seq.pos[b, start:stop],
-                seq.tri_indices,
-                seq.uv,
-                texture,
-                background,
-                capsules=None if capsules is None else capsules[b, start:stop],
-                rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
-                coverage=True,
-                passes=spec.store_passes,
-            )
+            frames, coverage, *passes = render_frames(
+                spec, seq, b, sim, start, stop, capsules=capsules, look=(texture, background),
+                rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]), passes=spec.store_passes,
+            )  # fmt: skip
             coverage = coverage if spec.store_coverage else None
             layers = {**passes[0], "background": background[None]} if passes else None
             shard = f"{sim.split}-{unit.name}.tar"

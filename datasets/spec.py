@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import typing
 from typing import Any
 
 from render.camera import CameraSpec
@@ -99,6 +100,28 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, str):
         return str(value)  # StrEnum -> plain str
     return value
+
+
+def _from_plain(cls, values: Any):
+    """Instantiate dataclass ``cls`` from plain JSON, recursing into dataclass-typed fields."""
+    if dataclasses.is_dataclass(values):
+        return values
+    if not isinstance(values, dict):
+        raise ValueError(f"{cls.__name__}: expected a mapping, got {values!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(values) - fields)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: unknown {unknown}; allowed: {sorted(fields)}")
+    kwargs = {}
+    for name, value in values.items():
+        hint = hints[name]
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            value = _from_plain(hint, value)
+        elif typing.get_origin(hint) is tuple or hint is tuple:
+            value = tuple(value)
+        kwargs[name] = value
+    return cls(**kwargs)
 
 
 def _digest(payload: Any) -> str:
@@ -241,6 +264,23 @@ class DatasetSpec:
         if not self.store_passes:
             del out["store_passes"]
         return out
+
+    @classmethod
+    def from_json(cls, data: dict) -> DatasetSpec:
+        """Rebuild a spec from :meth:`to_json`'s form (e.g. a manifest's or ``spec.json``'s).
+
+        Round trip: ``DatasetSpec.from_json(spec.to_json()) == spec`` (same :meth:`key`), so a
+        tool can regenerate (variants of) the data a model was trained on.
+        """
+        data = dict(data)
+        scenario_class = data.pop("scenario_class", None)
+        known = {type_.__name__: type_ for type_ in MOTIONS.values()}
+        if scenario_class not in known:
+            raise ValueError(
+                f"spec.scenario_class must be one of {sorted(known)}, got {scenario_class!r}"
+            )
+        data["scenario"] = _from_plain(known[scenario_class], data.get("scenario", {}))
+        return _from_plain(cls, data)
 
     def physics_key(self) -> str:
         """Hash of what decides the simulated meshes (not the rendering)."""

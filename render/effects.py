@@ -55,49 +55,69 @@ class FrameRateMode(StrEnum):
     """The nearest input frame (frames dropped when slowing down, repeated when speeding up)."""
 
 
+def _switch(stage: str):
+    """An effect switch (off by default) of pipeline ``stage`` (``camera`` or ``appearance``)."""
+    return dataclasses.field(default=False, metadata={"stage": stage})
+
+
+def _strength(default: float, of: str, low: float, high: float, *, integer: bool = False):
+    """A field that is the strength of switch ``of``, plausible in [low, high].
+
+    Same metadata as :func:`simulator.effects.strength` (not imported: it would pull torch
+    into ``render``); the sim-to-real diagnosis fits the strength within this range.
+    """
+    meta = {"strength_of": of, "plausible": (low, high), "integer": integer}
+    return dataclasses.field(default=default, metadata=meta)
+
+
 @dataclasses.dataclass(frozen=True)
 class VisualEffects:
-    """Switches (and parameters) of the visual effects; all off by default."""
+    """Switches (and parameters) of the visual effects; all off by default.
 
-    motion_blur: bool = False
+    Each switch's ``stage`` metadata (``camera``: the image pipeline; ``appearance``: the
+    renderer's lighting and shading) and each strength's plausible range (see
+    :func:`_strength`) make the switch a candidate of the sim-to-real diagnosis.
+    """
+
+    motion_blur: bool = _switch("camera")
     """Each frame averages ``motion_blur_samples`` renders spread over the shutter interval."""
-    sensor_noise: bool = False
+    sensor_noise: bool = _switch("camera")
     """Per-pixel Gaussian noise with variance ``noise_read_sigma² + noise_shot_gain * level``."""
-    compression: bool = False
+    compression: bool = _switch("camera")
     """Each frame round-trips through JPEG (cv2.imencode/imdecode) at ``jpeg_quality``."""
-    lighting_variation: bool = False
+    lighting_variation: bool = _switch("appearance")
     """Per-clip jitter of the key light's direction and of the key and ambient intensities."""
-    specular: bool = False
+    specular: bool = _switch("appearance")
     """Glossy shading (PBR roughness ``specular_roughness`` instead of the matte 1.0)."""
-    shadows: bool = False
+    shadows: bool = _switch("appearance")
     """Cast shadows from the key light (cloth on itself, arm on cloth; not on the background)."""
-    camera_shake: bool = False
+    camera_shake: bool = _switch("camera")
     """Smooth random per-frame rotation and translation of the camera (hand-held look)."""
-    defocus_blur: bool = False
+    defocus_blur: bool = _switch("camera")
     """Per-clip disc blur of radius drawn in [``defocus_radius_min_px``, ``..._max_px``]."""
-    white_balance: bool = False
+    white_balance: bool = _switch("camera")
     """Per-clip colour cast: RGB gains in 1 ± ``white_balance_shift``, normalised to mean 1."""
-    frame_rate: bool = False
+    frame_rate: bool = _switch("camera")
     """Resample the clip in time to ``frame_rate_ratio`` x its frame rate (changes K)."""
 
     motion_blur_samples: int = 4
     """Sub-frame renders per frame (>= 2)."""
-    motion_blur_shutter: float = 0.5
+    motion_blur_shutter: float = _strength(0.5, "motion_blur", 0.1, 1.0)
     """Fraction of the frame interval the shutter is open, in (0, 1]; the exposure ends at
     the frame's time (positions are interpolated linearly from the previous frame)."""
-    noise_read_sigma: float = 2.0
+    noise_read_sigma: float = _strength(2.0, "sensor_noise", 0.5, 8.0)
     """Signal-independent noise std [8-bit levels]."""
     noise_shot_gain: float = 0.15
     """Signal-dependent (shot) noise variance per level [8-bit levels]."""
-    jpeg_quality: int = 50
+    jpeg_quality: int = _strength(50, "compression", 10, 90, integer=True)
     """JPEG quality, 1 (worst) to 100."""
     light_direction_jitter_deg: float = 25.0
     """Largest change of the key light's direction [deg]."""
-    light_intensity_jitter: float = 0.3
+    light_intensity_jitter: float = _strength(0.3, "lighting_variation", 0.05, 0.6)
     """Key and ambient intensities scale by factors drawn in 1 ± this, in [0, 1)."""
-    specular_roughness: float = 0.35
+    specular_roughness: float = _strength(0.35, "specular", 0.1, 0.8)
     """PBR roughness of the glossy cloth, in [0.04, 1]."""
-    shake_translation: float = 0.004
+    shake_translation: float = _strength(0.004, "camera_shake", 0.001, 0.012)
     """Camera shake translation amplitude (std per axis) [m]."""
     shake_rotation_deg: float = 0.4
     """Camera shake rotation amplitude (std per axis) [deg]."""
@@ -105,11 +125,11 @@ class VisualEffects:
     """Typical period of the shake [frames]; the motion mixes periods of 1x, 1/2x and 1/3x."""
     defocus_radius_min_px: float = 0.5
     """Smallest blur-disc radius [px] (output pixels)."""
-    defocus_radius_max_px: float = 1.5
+    defocus_radius_max_px: float = _strength(1.5, "defocus_blur", 0.75, 3.0)
     """Largest blur-disc radius [px]."""
-    white_balance_shift: float = 0.12
+    white_balance_shift: float = _strength(0.12, "white_balance", 0.03, 0.3)
     """Largest relative change of one channel's gain, in [0, 1)."""
-    frame_rate_ratio: float = 0.5
+    frame_rate_ratio: float = _strength(0.5, "frame_rate", 0.5, 2.0)
     """Output frame rate / input frame rate (> 0); the clip keeps its duration."""
     frame_rate_mode: FrameRateMode = FrameRateMode.BLEND
     """``blend`` or ``drop`` (see :class:`FrameRateMode`)."""

@@ -8,7 +8,19 @@ from __future__ import annotations
 
 import dataclasses
 
-__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "switches_from_dict"]
+__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength", "switches_from_dict"]
+
+
+def strength(default: float, of: str, low: float, high: float, *, integer: bool = False):
+    """A dataclass field that is the strength of switch ``of``, plausible in [low, high].
+
+    The metadata is what makes every switch of a registry a candidate of the sim-to-real
+    diagnosis (:mod:`sim2real.candidates`) with no change there: the diagnosis flips the
+    switch and fits this parameter within its plausible range (narrower than the validity
+    range the dataclass checks). A switch with no strength field is a binary candidate.
+    """
+    meta = {"strength_of": of, "plausible": (low, high), "integer": integer}
+    return dataclasses.field(default=default, metadata=meta)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,12 +42,15 @@ class PhysicsEffects:
     anisotropic_stiffness: bool = True
     """Direction-dependent stiffness as measured; off = isotropic average."""
 
-    lift_coefficient: float = 0.5
-    air_damping_coefficient: float = 0.05
-    gust_amplitude: float = 0.4
+    lift_coefficient: float = strength(0.5, "aero_lift", 0.1, 1.2)
+    """Thin flat plates reach C_l of about 1 before stall."""
+    air_damping_coefficient: float = strength(0.05, "air_damping", 0.01, 0.3)
+    gust_amplitude: float = strength(0.4, "gusty_wind", 0.1, 0.8)
+    """Fan and outdoor turbulence intensities span roughly 10-80 % of the mean speed."""
     gust_modes: int = 4
-    self_collision_radius: float = 0.012
-    internal_damping_beta: float = 2.0e-3
+    self_collision_radius: float = strength(0.012, "self_collision", 0.004, 0.02)
+    """From about the cloth's thickness to a coarse mesh's edge length [m]."""
+    internal_damping_beta: float = strength(2.0e-3, "internal_damping", 2.0e-4, 1.0e-2)
 
     def __post_init__(self):
         for field in dataclasses.fields(self):

@@ -122,13 +122,16 @@ class ScenarioWind:
     """Cloth hung from its top corners (or whole top edge) in constant-velocity wind."""
 
     resolution_level: int = 3
-    size: float = 0.5
-    """Side of the square cloth [m]."""
-    pose: str = "corners"
+    size: float = dataclasses.field(default=0.5, metadata={"plausible": (0.3, 0.8)})
+    """Side of the square cloth [m]. (``plausible`` metadata: the range of swatch sizes a
+    user may have filmed; the sim-to-real diagnosis tries scene fields that carry it.)"""
+    pose: str = dataclasses.field(default="corners", metadata={"choices": ("corners", "edge")})
     """``corners``: the two top corners pinned; ``edge``: the whole top edge pinned."""
     wind_speeds: tuple[float, ...] = (0.75, 1.5, 2.5)
     """Wind strengths W1 < W2 < W3 [m/s]."""
-    wind_yaw_jitter_deg: float = 15.0
+    wind_yaw_jitter_deg: float = dataclasses.field(
+        default=15.0, metadata={"plausible": (0.0, 45.0)}
+    )
     """Per-instance uniform jitter of the wind direction around +y [deg]."""
     height: float = 1.0
     """Height of the top edge [m]."""

@@ -99,3 +99,33 @@ def test_keys_separate_physics_from_rendering():
     assert spec.physics_key() == regrid.physics_key()
     assert spec.key() != regrid.key()
     assert tiny_spec(seed=3).physics_key() != spec.physics_key()
+
+
+def test_spec_round_trips_through_its_json_form():
+    import json
+
+    from render.camera import CameraSpec
+    from render.effects import VisualEffects
+    from simulator.effects import PhysicsEffects
+
+    specs = [
+        tiny_spec(),
+        tiny_spec(
+            visual=VisualEffects(motion_blur=True, frame_rate_mode="drop"),
+            physics=PhysicsEffects(aero_lift=True, anisotropic_stiffness=False),
+        ),
+        DatasetSpec(
+            motion="arm",
+            scenario=ScenarioArmBend(),
+            preset=PRESETS["small"],
+            camera=CameraSpec.arm(),
+        ),
+    ]
+    for spec in specs:
+        back = DatasetSpec.from_json(json.loads(json.dumps(spec.to_json())))
+        assert back == spec and back.key() == spec.key()
+    broken = specs[0].to_json() | {"scenario_class": "ScenarioRain"}
+    with pytest.raises(ValueError, match="scenario_class must be one of"):
+        DatasetSpec.from_json(broken)
+    with pytest.raises(ValueError, match=r"unknown \['colour'\]"):
+        DatasetSpec.from_json(specs[0].to_json() | {"colour": 1})

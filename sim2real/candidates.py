@@ -1,0 +1,264 @@
+"""The candidate library: every effect switch and scene parameter the diagnosis can try.
+
+Candidates are read from the registries' dataclass fields, so a switch added to
+:class:`simulator.effects.PhysicsEffects` or :class:`render.effects.VisualEffects` becomes a
+candidate with no change here:
+
+* a ``bool`` field is a switch; the candidate sets it to the opposite of its default (most
+  effects are off by default; ``strain_dependent_stiffness`` and ``anisotropic_stiffness``
+  are on, so their candidate is "the real cloth lacks it");
+* a field whose metadata says ``strength_of=<switch>`` and ``plausible=(low, high)`` is that
+  switch's strength, fitted within the plausible range; a switch without one is binary;
+* a scenario field with ``plausible`` (a number) or ``choices`` metadata is a **scene**
+  candidate: something the user may not have matched when filming.
+
+Stages (where in the pipeline the effect acts): ``scene``, ``physics`` (the simulator),
+``appearance`` (the renderer's lighting and shading) and ``camera`` (the image pipeline),
+the latter two from the visual switch's ``stage`` metadata.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+from datasets.spec import DatasetSpec
+from render.effects import IMAGE_EFFECT_ORDER, VisualEffects
+from simulator.effects import PhysicsEffects
+
+__all__ = ["STAGES", "Candidate", "candidate_library", "select_candidates"]
+
+STAGES = ("scene", "physics", "appearance", "camera")
+"""Pipeline stages in data-flow order."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """One unmodelled effect the diagnosis can add to the simulated domain.
+
+    ``strengths`` of a binary candidate are ``(None,)``; of a choice candidate the
+    non-default choices; else a grid over the plausible range.
+    """
+
+    name: str
+    """``physics.<switch>``, ``visual.<switch>`` or ``scene.<field>``."""
+    stage: str
+    """One of :data:`STAGES`."""
+    registry: str
+    """``physics``, ``visual`` or ``scene``: the spec entry it changes."""
+    field: str
+    """The switch (physics/visual) or scenario field (scene) it sets."""
+    value: object = None
+    """Value the switch takes when the candidate is added (the opposite of its default)."""
+    param: str | None = None
+    """The strength field (``None``: binary or a scene field itself)."""
+    low: float | None = None
+    high: float | None = None
+    integer: bool = False
+    choices: tuple = ()
+    default: object = None
+    """The nominal value of the strength / scene field."""
+    doc: str = ""
+
+    @property
+    def needs_simulation(self) -> bool:
+        """True when the candidate changes the meshes (physics, scene), not only the pixels."""
+        return self.registry in ("physics", "scene")
+
+    @property
+    def binary(self) -> bool:
+        """True when there is nothing to fit."""
+        return self.low is None and not self.choices
+
+    def strengths(self, count: int) -> tuple:
+        """The strengths tried, in increasing order.
+
+        ``count`` points over the plausible range (log-spaced when it spans more than a
+        factor 4; a scene field's nominal value left out), the non-default choices, or
+        ``(None,)`` for a binary switch.
+        """
+        if self.choices:
+            return tuple(c for c in self.choices if c != self.default)
+        if self.low is None:
+            return (None,)
+        if count == 1:
+            grid = np.array([math.sqrt(self.low * self.high) if self.low > 0 else self.high])
+        elif self.low > 0 and self.high / self.low > 4:
+            grid = np.geomspace(self.low, self.high, count)
+        else:
+            grid = np.linspace(self.low, self.high, count)
+        values = [round(v) for v in grid] if self.integer else [float(f"{v:.6g}") for v in grid]
+        if self.registry == "scene":  # the nominal value itself would add nothing
+            values = [v for v in values if not math.isclose(v, self.default, rel_tol=1e-9)]
+        return tuple(dict.fromkeys(values))
+
+    def check_strength(self, value) -> None:
+        """Raise a ValueError naming the candidate and the allowed values unless ``value`` fits."""
+        if self.choices:
+            if value not in self.choices:
+                raise ValueError(
+                    f"strength of {self.name} must be one of {self.choices}, got {value!r}"
+                )
+        elif self.low is None:
+            if value is not None:
+                raise ValueError(f"{self.name} is a switch without strength, got {value!r}")
+        elif not (isinstance(value, int | float) and self.low <= value <= self.high):
+            raise ValueError(
+                f"strength of {self.name} ({self.param}) must be in "
+                f"[{self.low}, {self.high}], got {value!r}"
+            )
+
+    def apply(self, spec: DatasetSpec, strength=None) -> DatasetSpec:
+        """``spec`` with this effect added at ``strength`` (validated)."""
+        self.check_strength(strength)
+        if self.registry == "scene":
+            return dataclasses.replace(
+                spec, scenario=dataclasses.replace(spec.scenario, **{self.field: strength})
+            )
+        changes = {self.field: self.value}
+        if self.param is not None:
+            changes[self.param] = int(strength) if self.integer else strength
+        group = "physics" if self.registry == "physics" else "visual"
+        return dataclasses.replace(
+            spec, **{group: dataclasses.replace(getattr(spec, group), **changes)}
+        )
+
+    def label(self, strength=None) -> str:
+        """Short text for reports, e.g. ``visual.sensor_noise(noise_read_sigma=2)``."""
+        if strength is None:
+            return self.name
+        key = self.param or self.field
+        return (
+            f"{self.name}({key}={strength:g})"
+            if isinstance(strength, float)
+            else f"{self.name}({key}={strength})"
+        )
+
+
+def _visual_stage(field: dataclasses.Field) -> str:
+    stage = field.metadata.get("stage")
+    if stage is None:  # an undocumented new switch: image effects are the camera's
+        stage = "camera" if field.name in IMAGE_EFFECT_ORDER else "appearance"
+    if stage not in STAGES:
+        raise ValueError(
+            f"VisualEffects.{field.name}: stage must be one of {STAGES}, got {stage!r}"
+        )
+    return stage
+
+
+def _switch_candidates(cls, registry: str) -> list[Candidate]:
+    fields = dataclasses.fields(cls)
+    defaults = cls()
+    strengths = {f.metadata["strength_of"]: f for f in fields if "strength_of" in f.metadata}
+    out = []
+    for field in fields:
+        if field.type not in ("bool", bool):
+            continue
+        stage = "physics" if registry == "physics" else _visual_stage(field)
+        default = getattr(defaults, field.name)
+        kwargs = {}
+        if (param := strengths.get(field.name)) is not None:
+            low, high = param.metadata["plausible"]
+            kwargs = {
+                "param": param.name, "low": low, "high": high,
+                "integer": bool(param.metadata.get("integer", False)),
+                "default": getattr(defaults, param.name),
+            }  # fmt: skip
+        out.append(
+            Candidate(
+                name=f"{registry}.{field.name}",
+                stage=stage,
+                registry=registry,
+                field=field.name,
+                value=not default,
+                **kwargs,
+            )
+        )
+    return out
+
+
+def _scene_candidates(spec: DatasetSpec) -> list[Candidate]:
+    out = []
+    for field in dataclasses.fields(spec.scenario):
+        if "choices" in field.metadata:
+            kwargs = {"choices": tuple(field.metadata["choices"])}
+        elif "plausible" in field.metadata:
+            kwargs = dict(zip(("low", "high"), field.metadata["plausible"], strict=True))
+        else:
+            continue
+        out.append(
+            Candidate(
+                name=f"scene.{field.name}",
+                stage="scene",
+                registry="scene",
+                field=field.name,
+                default=getattr(spec.scenario, field.name),
+                **kwargs,
+            )
+        )
+    return out
+
+
+def candidate_library(
+    spec: DatasetSpec,
+    physics_cls: type = PhysicsEffects,
+    visual_cls: type = VisualEffects,
+) -> dict[str, Candidate]:
+    """Every candidate for data made like ``spec``, by name, in stage order.
+
+    ``physics_cls`` / ``visual_cls`` exist for tests that plant a new switch; the
+    diagnosis always uses the project's registries.
+    """
+    found = _scene_candidates(spec)
+    found += _switch_candidates(physics_cls, "physics") + _switch_candidates(visual_cls, "visual")
+    found.sort(key=lambda c: STAGES.index(c.stage))
+    return {c.name: c for c in found}
+
+
+def select_candidates(
+    library: dict[str, Candidate], names: Iterable[str] | str | None
+) -> list[Candidate]:
+    """The chosen candidates, in library order.
+
+    ``names`` holds candidate names and/or stage names (a stage stands for all of its
+    candidates); ``None`` or ``"all"``: every candidate. Unknown names raise, listing the
+    allowed ones.
+    """
+    if names is None or isinstance(names, str):
+        names = [names or "all"]
+    names = list(names)
+    unknown = [n for n in names if n not in library and n not in STAGES and n != "all"]
+    if unknown:
+        raise ValueError(
+            f"candidates: unknown {unknown}; allowed: 'all', a stage {list(STAGES)} or "
+            f"{sorted(library)}"
+        )
+    if not names:
+        raise ValueError("candidates: the list is empty; give 'all', a stage or candidate names")
+    wanted = set(names)
+    return [
+        c for c in library.values()
+        if "all" in wanted or c.name in wanted or c.stage in wanted
+    ]  # fmt: skip
+
+
+def main() -> None:
+    """``python -m sim2real.candidates``: list the library for the default wind scene."""
+    from datasets.spec import PRESETS
+    from simulator.scenario import ScenarioWind
+
+    spec = DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=PRESETS["small"])
+    for c in candidate_library(spec).values():
+        strengths = (
+            "switch"
+            if c.binary
+            else ", ".join(f"{s:g}" if isinstance(s, float) else str(s) for s in c.strengths(3))
+        )
+        print(f"{c.name:40s} {c.stage:11s} {c.param or c.field:24s} {strengths}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""Hydra entry point of the sim-to-real diagnosis (configs/diagnose.yaml).
+
+``python -m sim2real.diagnose real_dir=path/to/real run=logs/train/<run> [budget=quick|full]``
+writes ``outputs/sim2real/<name>/report.html`` (and ``report.md``, ``report.json``, PNG
+figures) and prints the verdict. See :mod:`sim2real.diagnosis` for the method.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from .pipeline import run_diagnosis
+from .report import verdict
+
+log = logging.getLogger(__name__)
+
+
+def run(cfg: DictConfig) -> dict:
+    """Run the configured diagnosis; returns the result dict."""
+    name = cfg.name or f"{Path(str(cfg.real_dir)).name}-{Path(str(cfg.run)).name}"
+    out_dir = cfg.out_dir or f"outputs/sim2real/{name}"
+    candidates = cfg.candidates
+    if not isinstance(candidates, str):
+        candidates = [str(c) for c in candidates]
+    return run_diagnosis(
+        real_dir=cfg.real_dir,
+        run=cfg.run,
+        out_dir=out_dir,
+        cache_dir=cfg.cache_dir,
+        mesh_cache=cfg.mesh_cache,
+        budget=instantiate(cfg.budget),
+        candidates=candidates,
+        strengths=OmegaConf.to_container(cfg.strengths, resolve=True),
+        data_dir=cfg.data_dir,
+        clip_len=int(cfg.clip_len),
+        clip_stride=int(cfg.clip_stride),
+        alpha=float(cfg.alpha),
+        seed=int(cfg.seed),
+        n_jobs=int(cfg.n_jobs),
+        device=str(cfg.device),
+        name=name,
+        progress=bool(cfg.progress),
+    )
+
+
+@hydra.main(version_base="1.3", config_path="../configs", config_name="diagnose")
+def main(cfg: DictConfig) -> None:
+    """Hydra wrapper around :func:`run`: bad input ends with one line naming the field."""
+    try:
+        result = run(cfg)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    out = cfg.out_dir or f"outputs/sim2real/{result['name']}"
+    print(verdict(result))
+    print(f"report: {Path(out) / 'report.html'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,300 @@
+"""The diagnosis itself: where the sim-to-real gap lies and which candidate effect closes it.
+
+Given the real clips R, the trained run (its network and the spec of its training data) and
+a candidate library, :func:`diagnose`:
+
+1. builds the nominal simulated set S (the training data's settings on fresh simulations)
+   and a second nominal draw S' (the chance level of every "closure"), cuts all of them into
+   clips the same way, and measures every rung of the ladder (:mod:`sim2real.ladder`);
+2. per rung, compares S with R (:func:`sim2real.stats.compare`: MMD², KID, domain AUC, group
+   permutation p-value, bootstrap intervals, within-domain noise floor) and localises the gap
+   (significant rungs; the first network layer where the floor-corrected AUC jumps);
+3. per candidate and strength, builds S_e (visual effects re-render S's meshes, physical and
+   scene ones re-simulate), measures its MMD² to R on each rung with S's scaling and kernel,
+   and scores the fraction of the floor-corrected gap it closes on the scored rungs; the best
+   strength is the fit; candidates are ranked, confusable ones listed, and the open-set
+   answer is given when no candidate beats the threshold;
+4. per rung, a linear probe trained on S (class position) is tested on R against measured
+   stiffness and density: a gap on a rung whose probe still transfers is harmless.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+
+import numpy as np
+from scipy import stats as sstats
+
+from .candidates import STAGES
+from .ladder import LadderFeatures
+from .stats import Gap, compare, gap_closed, median_bandwidth, mmd2_unbiased, standardize
+
+__all__ = [
+    "OPEN_SET_MIN_CLOSURE",
+    "CandidateResult",
+    "candidate_result",
+    "localise",
+    "probe_transfer",
+    "rank_candidates",
+    "rung_gaps",
+    "scored_rungs",
+]
+
+log = logging.getLogger(__name__)
+
+PIXEL_RUNGS = ("pixel", "motion")
+
+OPEN_SET_MIN_CLOSURE = 0.3
+"""A candidate must close at least this share of the floor-corrected gap (mean over the scored
+rungs), and beat the chance closure of a fresh nominal draw S' by :data:`OPEN_SET_MARGIN`, to
+be named the cause; else the answer is "unexplained residual". With 3 strengths per candidate
+and ~20 candidates, the best of ~60 noisy closures of an irrelevant effect reaches about
+0.1-0.2 on our sets (the S' line of every report shows it), so 0.3 keeps false attributions
+rare while a planted effect at a fitted strength closes 0.6-1."""
+
+OPEN_SET_MARGIN = 0.15
+CONFUSABLE_WITHIN = 0.1
+"""Candidates whose scores lie within this of the best are reported as confusable with it."""
+
+
+def _scaled(ref: np.ndarray, *arrays: np.ndarray) -> list[np.ndarray]:
+    """``arrays`` standardized with ``ref``'s statistics (the same scaling as ``compare``)."""
+    return [standardize(ref, a)[1] for a in arrays]
+
+
+def rung_gaps(
+    sim: LadderFeatures,
+    real: LadderFeatures,
+    *,
+    n_perm: int,
+    n_boot: int,
+    n_floor: int,
+    seed: int,
+) -> dict[str, Gap]:
+    """S vs R on every rung.
+
+    Every rung's features are standardised with the pooled S and R rows and the RBF
+    bandwidth is the median heuristic on them; both stay fixed for every S_e of the
+    rung (:func:`candidate_result`), so all MMD² of one rung use one kernel. (Scaling by S
+    alone saturates the kernel: a feature that S never varies, such as the noise level of a
+    noise-free render, turns any real difference into an infinite distance, and no
+    candidate strength could then look closer than another.)
+
+    ``n_perm`` is raised where needed so that the smallest attainable p-value,
+    1 / (n_perm + 1), is below the Bonferroni level of :func:`localise` at alpha 0.05.
+    """
+    n_perm = max(n_perm, math.ceil(2 * len(sim.rungs) / 0.05))
+    out = {}
+    for i, name in enumerate(sim.rungs):
+        x, y = sim.rungs[name], real.rungs[name]
+        pooled = np.concatenate([x, y])
+        out[name] = compare(
+            x, y, sim.groups, real.groups, reference=pooled,
+            bandwidth=median_bandwidth(standardize(pooled)),
+            n_perm=n_perm, n_boot=n_boot, n_floor=n_floor,
+            rng=np.random.default_rng([seed, i]),
+        )  # fmt: skip
+    return out
+
+
+def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
+    """Which rungs carry a significant gap, and the network layer where it jumps.
+
+    A rung is significant when its group-permutation p-value is below ``alpha`` /
+    (number of rungs) (Bonferroni) and its MMD² exceeds the noise floor. The jump layer is
+    the network layer with the largest rise of the floor-corrected domain AUC over the rung
+    before it (the first layer's predecessor is the pixel rung).
+    """
+    names = list(gaps)
+    threshold = alpha / max(1, len(names))
+    significant = [n for n in names if gaps[n].p_value < threshold and gaps[n].corrected_mmd2 > 0]
+    layers = [n for n in names if n not in PIXEL_RUNGS]
+    first_layer = next((n for n in layers if n in significant), None)
+    jump, rise = None, -math.inf
+    previous = gaps["pixel"].corrected_auc if "pixel" in gaps else 0.0
+    for name in layers:
+        value = gaps[name].corrected_auc
+        value = 0.0 if math.isnan(value) else value
+        previous = 0.0 if math.isnan(previous) else previous
+        if value - previous > rise:
+            jump, rise = name, value - previous
+        previous = value
+    return {
+        "alpha": alpha,
+        "threshold": threshold,
+        "significant": significant,
+        "first_significant_layer": first_layer,
+        "jump_layer": jump,
+        "jump_rise": None if jump is None else rise,
+    }
+
+
+def scored_rungs(location: dict) -> list[str]:
+    """Rungs a candidate is scored on.
+
+    Pixel and motion when significant, plus the first significant network layer (one layer
+    stands for the net: its layers are strongly correlated).
+    """
+    rungs = [n for n in PIXEL_RUNGS if n in location["significant"]]
+    if location["first_significant_layer"] is not None:
+        rungs.append(location["first_significant_layer"])
+    return rungs
+
+
+def _distance(sim: LadderFeatures, a: LadderFeatures, real: LadderFeatures, rung: str, bw: float):
+    """MMD² of set ``a`` to R on ``rung`` with the scaling and kernel of :func:`rung_gaps`."""
+    pooled = np.concatenate([sim.rungs[rung], real.rungs[rung]])
+    xa, xb = _scaled(pooled, a.rungs[rung], real.rungs[rung])
+    return mmd2_unbiased(xa, xb, bw)
+
+
+@dataclasses.dataclass(frozen=True)
+class CandidateResult:
+    """One candidate's fit: per strength, the MMD² to R and the closure per rung."""
+
+    name: str
+    stage: str
+    strengths: tuple
+    mmd2: dict[str, list[float]]
+    """Rung -> MMD²(S_e, R) per strength."""
+    closure: dict[str, list[float]]
+    """Rung -> fraction of the floor-corrected gap closed, per strength."""
+    score: list[float]
+    """Mean closure over the scored rungs, per strength."""
+
+    @property
+    def best(self) -> int:
+        """Index of the fitted strength."""
+        return int(np.argmax(self.score)) if self.score else 0
+
+    @property
+    def best_score(self) -> float:
+        """Score at the fitted strength."""
+        return self.score[self.best] if self.score else 0.0
+
+    @property
+    def best_strength(self):
+        """The fitted strength (``None`` for a switch)."""
+        return self.strengths[self.best]
+
+    @property
+    def interval(self) -> tuple:
+        """(lowest, highest) strength scoring within :data:`CONFUSABLE_WITHIN` of the best.
+
+        The range the data cannot tell apart; ``(None, None)`` for switches and choices.
+        """
+        values = [
+            s for s, v in zip(self.strengths, self.score, strict=True)
+            if isinstance(s, int | float) and v >= self.best_score - CONFUSABLE_WITHIN
+        ]  # fmt: skip
+        return (min(values), max(values)) if values else (None, None)
+
+    def to_json(self) -> dict:
+        """Plain JSON."""
+        out = dataclasses.asdict(self)
+        out.update(
+            best_strength=self.best_strength, best_score=self.best_score,
+            strength_interval=list(self.interval),
+        )  # fmt: skip
+        return out
+
+
+def candidate_result(
+    name: str,
+    stage: str,
+    strengths: tuple,
+    sets: list[LadderFeatures],
+    sim: LadderFeatures,
+    real: LadderFeatures,
+    gaps: dict[str, Gap],
+    rungs: list[str],
+) -> CandidateResult:
+    """Score the candidate's sets (one per strength) against R on every rung."""
+    mmd2 = {r: [] for r in gaps}
+    closure = {r: [] for r in gaps}
+    for features in sets:
+        for rung, gap in gaps.items():
+            after = _distance(sim, features, real, rung, gap.bandwidth)
+            mmd2[rung].append(after)
+            floor = gap.floor_mmd2 if math.isfinite(gap.floor_mmd2) else 0.0
+            closure[rung].append(gap_closed(gap.mmd2, after, floor))
+    score = [
+        float(np.mean([closure[r][i] for r in rungs])) if rungs else 0.0 for i in range(len(sets))
+    ]
+    return CandidateResult(name, stage, tuple(strengths), mmd2, closure, score)
+
+
+def rank_candidates(results: list[CandidateResult], null: CandidateResult | None) -> dict:
+    """Ranking, open-set decision, stage verdict and confusable pairs."""
+    ranked = sorted(results, key=lambda r: r.best_score, reverse=True)
+    null_score = null.best_score if null is not None else 0.0
+    threshold = max(OPEN_SET_MIN_CLOSURE, null_score + OPEN_SET_MARGIN)
+    top = ranked[0] if ranked else None
+    explained = top is not None and top.best_score >= threshold
+    confusable = [
+        r.name for r in ranked[1:]
+        if top is not None and r.best_score >= top.best_score - CONFUSABLE_WITHIN
+    ]  # fmt: skip
+    stages = {}
+    for stage in STAGES:
+        inside = [r for r in ranked if r.stage == stage]
+        stages[stage] = max((r.best_score for r in inside), default=None)
+    return {
+        "ranking": [r.name for r in ranked],
+        "threshold": threshold,
+        "null_score": null_score,
+        "explained": explained,
+        "top": None if top is None else top.name,
+        "confusable_with_top": confusable,
+        "stage_scores": stages,
+    }
+
+
+def stage_of_residual(location: dict) -> str:
+    """Stage named by an unexplained gap's rung pattern (no candidate closes it)."""
+    if "pixel" in location["significant"]:
+        return "appearance or camera (the pixel statistics differ)"
+    if "motion" in location["significant"]:
+        return "physics or scene (the motion differs, the pixel statistics do not)"
+    if location["first_significant_layer"] is not None:
+        return "network features only (pixel and motion statistics agree)"
+    return "none (no significant gap)"
+
+
+def _ridge(x: np.ndarray, y: np.ndarray, l2: float = 1.0) -> np.ndarray:
+    gram = x.T @ x + l2 * len(x) * np.eye(x.shape[1])
+    return np.linalg.solve(gram, x.T @ (y - y.mean()))
+
+
+def probe_transfer(sim: LadderFeatures, real: LadderFeatures, *, l2: float = 1.0) -> dict:
+    """Per rung: a ridge probe of the class position trained on S, tested on R.
+
+    The class id is a stiffness ordering (``models.scores``); on R the per-video mean
+    prediction is correlated (Spearman) with the measured stiffness and density. A rung
+    with a large gap whose probe still transfers carries a harmless gap; a probe that
+    transfers on ``motion`` but not on the network's layers points at appearance.
+    """
+    out = {}
+    videos = np.unique(real.groups)
+    index = {v: i for i, v in enumerate(videos)}
+    rows = np.array([index[g] for g in real.groups])
+    counts = np.bincount(rows, minlength=len(videos)).astype(float)
+    stiff = np.bincount(rows, real.stiffness, len(videos)) / counts
+    dens = np.bincount(rows, real.density, len(videos)) / counts
+    target = sim.class_id.astype(float)
+    for name in sim.rungs:
+        xs, xr = _scaled(sim.rungs[name], sim.rungs[name], real.rungs[name])
+        weight = _ridge(xs, target, l2)
+        pred = xr @ weight
+        per_video = np.bincount(rows, pred, len(videos)) / counts
+        fit = np.corrcoef(xs @ weight, target)[0, 1] if np.std(xs @ weight) > 0 else 0.0
+        entry = {"sim_fit_r": float(fit)}
+        for label, measured in (("stiffness", stiff), ("density", dens)):
+            if len(videos) >= 3 and np.std(per_video) > 0 and np.std(measured) > 0:
+                entry[f"{label}_spearman"] = float(sstats.spearmanr(per_video, measured)[0])
+            else:
+                entry[f"{label}_spearman"] = None
+        out[name] = entry
+    return out

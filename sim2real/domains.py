@@ -1,0 +1,190 @@
+"""Clip sets of every domain, cut the same way: nominal simulation S, S + effect, real R.
+
+Simulated sets go through the dataset generator's own pieces (mesh cache keyed by the physics
+hash, :func:`datasets.generation.simulate_unit`, the generator's renderer, each simulation's
+texture and background), so a visual candidate re-renders cached meshes and only a physical or
+scene candidate re-simulates. Each simulation is rendered as one video (image effects such
+as a frame-rate change act on the whole video, as a camera would) and cut into clips exactly
+as :class:`datasets.real_video.RealVideoDataset` cuts a real video: ``clip_len`` frames every
+``clip_stride`` frames at the preset's frame rate. Groups (for every resampling in the
+statistics) are simulations in S and videos in R.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from datasets.generation import render_frames, simulate_unit
+from datasets.plan import plan_units
+from datasets.real_video import RealVideoDataset
+from datasets.spec import DatasetSpec, SizePreset
+from render.capsules import sequence_capsules
+from simulator.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
+
+__all__ = ["ClipSet", "clip_starts", "diagnosis_spec", "real_clips", "simulated_clips"]
+
+_VIDEO_STREAM = 3  # the generator's clip stream; clip 0 of a simulation = its video
+
+
+@dataclasses.dataclass(frozen=True)
+class ClipSet:
+    """Clips of one domain with their groups and labels (one row per clip)."""
+
+    frames: np.ndarray
+    """uint8 RGB, shape (N, T, H, W, 3)."""
+    groups: np.ndarray
+    """Simulation or video id, str, shape (N,)."""
+    class_id: np.ndarray
+    """Subspace class, int, shape (N,); -1 for real clips."""
+    stiffness: np.ndarray
+    """Bending multiplier (simulated) or measured stiffness (real), shape (N,)."""
+    density: np.ndarray
+    """Areal density [kg/m²] (simulated) or measured density (real), shape (N,)."""
+    coverage: np.ndarray | None = None
+    """Cloth coverage, uint8, shape (N, T, H, W) (simulated sets only)."""
+    skipped: tuple[str, ...] = ()
+    """Videos too short for one clip (real sets), reported, never silently dropped."""
+
+    def __len__(self) -> int:
+        return int(self.frames.shape[0])
+
+    @property
+    def group_count(self) -> int:
+        """Distinct groups."""
+        return len(set(self.groups.tolist()))
+
+
+def clip_starts(frame_count: int, clip_len: int, clip_stride: int) -> range:
+    """First frames of the clips cut from a video of ``frame_count`` frames."""
+    return range(0, frame_count - clip_len + 1, clip_stride)
+
+
+def diagnosis_spec(
+    train: DatasetSpec,
+    *,
+    classes: tuple[int, ...] | None = None,
+    sims_per_class: int = 1,
+    clips_per_sim: int = 3,
+    seed_offset: int = 1000,
+    jobs: int = 1,
+) -> DatasetSpec:
+    """The nominal simulated domain S: the training data's settings on fresh simulations.
+
+    Same scene, mesh level, texture mode, effects, camera and frame rate as ``train``;
+    ``classes`` (default: every third class of the training set, spanning the grid),
+    ``sims_per_class`` simulations each, with seeds never used in training
+    (``train.seed + seed_offset``), split into at least ``jobs`` work units.
+    """
+    chosen = tuple(train.classes[::3]) if classes is None else tuple(classes)
+    preset = SizePreset(
+        "diagnose",
+        sims_per_class=sims_per_class,
+        clips_per_sim=clips_per_sim,
+        val_sims_per_class=0,
+        test_sims_per_class=0,
+        frames_per_clip=train.preset.frames_per_clip,
+        fps=train.preset.fps,
+    )
+    per_unit = math.ceil(len(chosen) / max(1, jobs))
+    return dataclasses.replace(
+        train,
+        preset=preset,
+        classes=chosen,
+        seed=train.seed + seed_offset,
+        sims_per_unit=per_unit,
+        store_passes=False,
+        store_coverage=True,
+    )
+
+
+def simulated_clips(
+    spec: DatasetSpec,
+    mesh_cache,
+    *,
+    clip_len: int | None = None,
+    clip_stride: int | None = None,
+) -> ClipSet:
+    """Simulate (or load cached meshes) and render every simulation of ``spec`` as clips.
+
+    Args:
+        spec: What to simulate and render.
+        mesh_cache: Mesh-cache folder (shared with ``datasets.generate``).
+        clip_len: Frames per clip (default: the preset's).
+        clip_stride: Frames between clip starts (default: ``clip_len``).
+
+    Returns:
+        The clips; groups are simulation ids.
+    """
+    clip_len = clip_len or spec.preset.frames_per_clip
+    clip_stride = clip_stride or clip_len
+    basis_density = load_wang_material(BASIS_MATERIAL).density
+    rows: dict[str, list] = {k: [] for k in ("frames", "coverage", "groups", "class_id", "k")}
+    for unit in plan_units(spec):
+        seq = simulate_unit(spec, unit, mesh_cache)  # cached by physics key: a visual
+        # candidate re-renders the nominal meshes
+        capsules = sequence_capsules(seq)
+        start, stop = spec.lead_in_frames, spec.frames_per_sim
+        for b, sim in enumerate(unit.sims):
+            frames, coverage = render_frames(
+                spec, seq, b, sim, start, stop, capsules=capsules,
+                rng=np.random.default_rng([sim.seed, _VIDEO_STREAM, 0]),
+            )  # fmt: skip
+            for first in clip_starts(len(frames), clip_len, clip_stride):
+                rows["frames"].append(frames[first : first + clip_len])
+                rows["coverage"].append(coverage[first : first + clip_len])
+                rows["groups"].append(sim.sim_id)
+                rows["class_id"].append(sim.class_id)
+                rows["k"].append(multipliers_from_class(sim.class_id)[1])
+    if not rows["frames"]:
+        raise ValueError(
+            f"the simulated videos ({spec.frames_per_sim - spec.lead_in_frames} frames) are "
+            f"too short for one clip of {clip_len} frames"
+        )
+    count = len(rows["frames"])
+    return ClipSet(
+        frames=np.stack(rows["frames"]),
+        groups=np.array(rows["groups"], dtype=str),
+        class_id=np.array(rows["class_id"], dtype=np.int64),
+        stiffness=np.array(rows["k"], dtype=np.float64),
+        density=np.full(count, basis_density),
+        coverage=np.stack(rows["coverage"]),
+    )
+
+
+def real_clips(
+    real_dir,
+    *,
+    size: int,
+    clip_len: int,
+    clip_stride: int,
+    fps: float,
+    max_clips_per_video: int | None = None,
+) -> ClipSet:
+    """Every clip of a real folder (the layout :class:`RealVideoDataset` reads).
+
+    Videos too short for one clip are listed in ``skipped``; a folder where no video gives a
+    clip raises (``RealVideoDataset`` names the folder).
+    """
+    dataset = RealVideoDataset(
+        real_dir,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        target_fps=fps,
+        size=size,
+        max_clips_per_video=max_clips_per_video,
+    )
+    used = {v for v, _ in dataset.clips}
+    skipped = tuple(video.name for v, video in enumerate(dataset.videos) if v not in used)
+    frames = np.stack([dataset.read_frames(i) for i in range(len(dataset))])
+    videos = [dataset.videos[v] for v, _ in dataset.clips]
+    return ClipSet(
+        frames=frames,
+        groups=np.array([v.name for v in videos], dtype=str),
+        class_id=np.full(len(videos), -1, dtype=np.int64),
+        stiffness=np.array([v.stiffness for v in videos], dtype=np.float64),
+        density=np.array([v.density for v in videos], dtype=np.float64),
+        skipped=skipped,
+    )

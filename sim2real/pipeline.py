@@ -1,0 +1,489 @@
+"""Run one diagnosis end to end: inputs checked, sets built and cached, report written.
+
+``run_diagnosis`` is what ``python -m sim2real.diagnose`` calls. Every input is checked
+before anything is written; every expensive set (simulated or real clips on every rung) is
+cached under a content key, so a rerun, or a run with one more candidate, only builds what
+is new; the report folder receives complete files only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from datasets.spec import DatasetSpec, check_int
+from simulator.material import CLASS_COUNT
+from simulator.threads import use_process_threads
+
+from .candidates import Candidate, candidate_library, select_candidates
+from .diagnosis import (
+    candidate_result,
+    localise,
+    probe_transfer,
+    rank_candidates,
+    rung_gaps,
+    scored_rungs,
+    stage_of_residual,
+)
+from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
+from .features import roi_box
+from .ladder import LadderFeatures, content_key, file_digest, ladder_features
+from .report import contact_sheet, write_report
+
+__all__ = ["Budget", "SetJob", "load_run", "run_diagnosis"]
+
+log = logging.getLogger(__name__)
+
+NULL_SEED_OFFSET = 500
+"""S' = the nominal set re-drawn with seeds this far from S's (the chance level of closure)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """How much the diagnosis simulates and resamples (``configs/budget/``)."""
+
+    name: str = "quick"
+    class_stride: int = 6
+    """Every n-th class of the training set enters S (the grid's corners and middle)."""
+    sims_per_class: int = 2
+    clips_per_sim: int = 3
+    strengths: int = 3
+    """Strengths tried per candidate with a strength parameter."""
+    max_clips_per_video: int | None = 4
+    n_perm: int = 200
+    n_boot: int = 200
+    n_floor: int = 10
+    refine: str = "visual"
+    """Densify the strength grid around the best strength of the top candidates: ``none``,
+    ``visual`` (re-rendered candidates only: no simulation) or ``all``."""
+
+    def __post_init__(self):
+        if self.refine not in ("none", "visual", "all"):
+            raise ValueError(f"budget.refine must be none, visual or all, got {self.refine!r}")
+        for name in ("class_stride", "sims_per_class", "clips_per_sim", "strengths", "n_floor"):
+            check_int(f"budget.{name}", getattr(self, name))
+        for name in ("n_perm", "n_boot"):
+            check_int(f"budget.{name}", getattr(self, name), low=19)
+        if self.max_clips_per_video is not None:
+            check_int("budget.max_clips_per_video", self.max_clips_per_video)
+
+
+@dataclasses.dataclass(frozen=True)
+class SetJob:
+    """One simulated set to build: the nominal S, S', or S with a candidate at a strength."""
+
+    label: str
+    spec: DatasetSpec
+
+
+@dataclasses.dataclass(frozen=True)
+class _Context:
+    """What every set job shares (picklable, sent to the worker processes)."""
+
+    box: tuple[int, int, int, int]
+    checkpoint: str
+    checkpoint_digest: str
+    mesh_cache: str
+    cache_dir: str
+    clip_len: int
+    clip_stride: int
+    device: str
+
+
+def load_run(run: str | Path, data_dir: str | Path | None = None) -> tuple[DatasetSpec, Path]:
+    """The training data's spec and the checkpoint of a training run.
+
+    Args:
+        run: A run folder (``logs/train/<run>``: ``checkpoints/best.ckpt`` or ``last.ckpt``
+            and ``.hydra/config.yaml``) or a checkpoint file.
+        data_dir: The training dataset folder (its ``spec.json``); default: the run's
+            ``data.data_dirs[0]``.
+    """
+    run = Path(run)
+    if run.is_file():
+        checkpoint, folder = run, run.parent.parent
+    elif run.is_dir():
+        folder = run
+        found = [run / "checkpoints" / n for n in ("best.ckpt", "last.ckpt")]
+        checkpoint = next((p for p in found if p.is_file()), None)
+        if checkpoint is None:
+            raise FileNotFoundError(f"run: {run} has no checkpoints/best.ckpt or last.ckpt")
+    else:
+        raise FileNotFoundError(f"run: {run} is neither a run folder nor a checkpoint file")
+    if data_dir is None:
+        config = folder / ".hydra" / "config.yaml"
+        if not config.is_file():
+            raise FileNotFoundError(
+                f"run: {folder} has no .hydra/config.yaml (the training config that names its "
+                "dataset); pass data_dir=<the training dataset folder>"
+            )
+        from omegaconf import OmegaConf
+
+        try:
+            dirs = OmegaConf.to_container(OmegaConf.load(config).data.data_dirs, resolve=True)
+        except Exception as err:  # any config problem gets the same advice
+            raise ValueError(
+                f"run: cannot read data.data_dirs from {config} ({err}); pass data_dir=..."
+            ) from None
+        data_dir = dirs[0]
+    spec_path = Path(data_dir) / "spec.json"
+    if not spec_path.is_file():
+        raise FileNotFoundError(
+            f"data_dir: {spec_path} not found (the training dataset's spec, written by "
+            "datasets.generate); pass data_dir=<the training dataset folder>"
+        )
+    from datasets.manifest import read_json
+
+    return DatasetSpec.from_json(read_json(spec_path)["spec"]), checkpoint
+
+
+def _load_net(checkpoint: str, device: str):
+    from models.material_classifier import load_classifier
+
+    module = load_classifier(checkpoint, map_location="cpu")
+    classes = module.net.classifier.out_features if hasattr(module.net, "classifier") else None
+    if classes is not None and classes != CLASS_COUNT:
+        raise ValueError(
+            f"run: checkpoint {checkpoint} has {classes} output classes; the diagnosis needs "
+            f"a classifier of the {CLASS_COUNT}-class stretch x bend subspace"
+        )
+    return module.net.to(device).eval()
+
+
+_NETS: dict = {}
+
+
+def _net(context: _Context):
+    key = (context.checkpoint, context.device)
+    if key not in _NETS:
+        _NETS.clear()
+        _NETS[key] = _load_net(context.checkpoint, context.device)
+    return _NETS[key]
+
+
+def _cache_path(context: _Context, key: str) -> Path:
+    return Path(context.cache_dir) / "features" / f"{key}.npz"
+
+
+def _sim_key(job: SetJob, context: _Context) -> str:
+    return content_key(
+        kind="sim", spec=job.spec.key(), clip=[context.clip_len, context.clip_stride],
+        box=list(context.box), net=context.checkpoint_digest,
+    )  # fmt: skip
+
+
+def build_set(job: SetJob, context: _Context, threads: int = 1) -> tuple[str, dict]:
+    """Features of one simulated set (from the cache when present); returns (path, seconds).
+
+    Runs in a worker process under joblib: one torch thread, its own renderer and net.
+    """
+    use_process_threads(threads)
+    path = _cache_path(context, _sim_key(job, context))
+    if path.is_file():
+        return str(path), {}
+    start = time.perf_counter()
+    clips = simulated_clips(
+        job.spec, context.mesh_cache, clip_len=context.clip_len, clip_stride=context.clip_stride
+    )
+    middle = time.perf_counter()
+    features = ladder_features(clips, context.box, _net(context), device=context.device)
+    features.save(path)
+    return str(path), {
+        "generate": middle - start,
+        "features": time.perf_counter() - middle,
+    }
+
+
+def _run_jobs(jobs: list[SetJob], context: _Context, n_jobs: int, progress: bool, timing: dict):
+    from tqdm.auto import tqdm
+
+    todo = [j for j in jobs if not _cache_path(context, _sim_key(j, context)).is_file()]
+    bar = tqdm(total=len(todo), desc="candidate sets", unit="set", disable=not progress)
+    try:
+        if n_jobs == 1 or len(todo) <= 1:
+            results = (build_set(j, context) for j in todo)
+        else:
+            from joblib import Parallel, delayed
+
+            parallel = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
+            results = parallel(delayed(build_set)(j, context) for j in todo)
+        for _, seconds in results:
+            for name, value in seconds.items():
+                timing[name] = timing.get(name, 0.0) + value
+            bar.update(1)
+    finally:
+        bar.close()
+    return {
+        j.label: LadderFeatures.load(_cache_path(context, _sim_key(j, context))) for j in jobs
+    }, len(jobs) - len(todo)
+
+
+def _real_digest(real_dir: Path) -> str:
+    parts = [file_digest(real_dir / "labels.csv")]
+    for path in sorted(real_dir.rglob("*")):
+        if path.is_file() and path.name != "labels.csv":
+            stat = path.stat()
+            parts.append(f"{path.relative_to(real_dir)}:{stat.st_size}:{stat.st_mtime_ns}")
+    return content_key(files=parts)
+
+
+def _check_real_labels(clips: ClipSet) -> None:
+    for column in ("stiffness", "density"):
+        values = getattr(clips, column)
+        bad = sorted({str(g) for g, v in zip(clips.groups, values, strict=True) if not v > 0})
+        if bad:
+            raise ValueError(f"real_dir labels.csv: column {column!r} must be > 0; not in {bad}")
+
+
+def run_diagnosis(
+    *,
+    real_dir: str | Path,
+    run: str | Path,
+    out_dir: str | Path,
+    cache_dir: str | Path,
+    mesh_cache: str | Path,
+    budget: Budget,
+    candidates: list[str] | str | None = None,
+    strengths: dict | None = None,
+    data_dir: str | Path | None = None,
+    clip_len: int = 10,
+    clip_stride: int = 10,
+    alpha: float = 0.05,
+    seed: int = 0,
+    n_jobs: int = 1,
+    device: str = "auto",
+    name: str | None = None,
+    progress: bool = True,
+) -> dict:
+    """Diagnose the gap between ``real_dir`` and the data ``run`` was trained on.
+
+    Returns the result dict (also written as ``out_dir/report.json`` with the Markdown and
+    HTML reports and figures). See :mod:`sim2real.diagnosis` for the method.
+    """
+    timing: dict[str, float] = {}
+    start = time.perf_counter()
+    real_dir, out_dir, cache_dir = Path(real_dir), Path(out_dir), Path(cache_dir)
+    check_int("n_jobs", n_jobs)
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    if device not in ("auto", "cpu", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    if device == "auto":
+        import torch
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    train_spec, checkpoint = load_run(run, data_dir)
+    net = _load_net(str(checkpoint), device)  # checks the class count before any work
+    if train_spec.camera.width != train_spec.camera.height:
+        raise ValueError("the training data's frames are not square; real clips are square crops")
+    spec = diagnosis_spec(
+        train_spec, classes=tuple(train_spec.classes[:: budget.class_stride]),
+        sims_per_class=budget.sims_per_class, clips_per_sim=budget.clips_per_sim, jobs=n_jobs,
+    )  # fmt: skip
+    library = candidate_library(spec)
+    chosen = select_candidates(library, candidates)
+    plan = _strength_plan(chosen, strengths or {}, budget.strengths)
+    # Real clips first: a bad real folder fails before any simulation.
+    real = real_clips(
+        real_dir, size=spec.camera.height, clip_len=clip_len, clip_stride=clip_stride,
+        fps=spec.preset.fps, max_clips_per_video=budget.max_clips_per_video,
+    )  # fmt: skip
+    _check_real_labels(real)
+    if real.group_count < 4:
+        raise ValueError(
+            f"real_dir: {real.group_count} usable videos; the diagnosis needs at least 4 "
+            "(its noise floor splits the videos in halves)"
+        )
+    timing["read real"] = time.perf_counter() - start
+
+    # Nominal S: simulated here (its coverage fixes the cloth box for every domain).
+    tick = time.perf_counter()
+    use_process_threads(1)
+    nominal_clips = simulated_clips(spec, mesh_cache, clip_len=clip_len, clip_stride=clip_stride)
+    box = roi_box(nominal_clips.coverage)
+    context = _Context(
+        box=tuple(int(v) for v in box), checkpoint=str(checkpoint),
+        checkpoint_digest=file_digest(checkpoint), mesh_cache=str(mesh_cache),
+        cache_dir=str(cache_dir), clip_len=clip_len, clip_stride=clip_stride, device=device,
+    )  # fmt: skip
+    _NETS[(context.checkpoint, device)] = net
+    timing["generate"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    real_key = content_key(
+        kind="real", files=_real_digest(real_dir), clip=[clip_len, clip_stride],
+        fps=spec.preset.fps, size=spec.camera.height, max_clips=budget.max_clips_per_video,
+        box=list(context.box), net=context.checkpoint_digest,
+    )  # fmt: skip
+    real_path = _cache_path(context, real_key)
+    if real_path.is_file():
+        real_features = LadderFeatures.load(real_path)
+    else:
+        real_features = ladder_features(real, context.box, net, device=device)
+        real_features.save(real_path)
+    nominal_path = _cache_path(context, _sim_key(SetJob("S", spec), context))
+    if nominal_path.is_file():
+        nominal = LadderFeatures.load(nominal_path)
+    else:
+        nominal = ladder_features(nominal_clips, context.box, net, device=device)
+        nominal.save(nominal_path)
+    timing["features"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    gaps = rung_gaps(nominal, real_features, n_perm=budget.n_perm, n_boot=budget.n_boot,
+                     n_floor=budget.n_floor, seed=seed)  # fmt: skip
+    location = localise(gaps, alpha=alpha)
+    rungs = scored_rungs(location)
+    timing["fit"] = time.perf_counter() - tick
+
+    jobs = [SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))]
+    jobs += _candidate_jobs(spec, plan)
+    sets, cached = _run_jobs(jobs, context, n_jobs, progress, timing)
+
+    def score(plan):
+        return [
+            candidate_result(
+                c.name,
+                c.stage,
+                values,
+                [sets[_label(c, v)] for v in values],
+                nominal,
+                real_features,
+                gaps,
+                rungs,
+            )
+            for c, values in plan
+        ]
+
+    tick = time.perf_counter()
+    results = score(plan)
+    refined = _refine(plan, results, budget.refine)
+    timing["fit"] += time.perf_counter() - tick
+    if refined != plan:
+        extra = [j for j in _candidate_jobs(spec, refined) if j.label not in sets]
+        more, more_cached = _run_jobs(extra, context, n_jobs, progress, timing)
+        sets.update(more)
+        jobs += extra
+        cached += more_cached
+        plan = refined
+    tick = time.perf_counter()
+    results = score(plan)
+    null = candidate_result(
+        "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs
+    )
+    ranking = rank_candidates(results, null)
+    probes = probe_transfer(nominal, real_features)
+    timing["fit"] += time.perf_counter() - tick
+    timing["total"] = time.perf_counter() - start
+
+    name = name or f"{real_dir.name}-{Path(run).name}"
+    result = {
+        "name": name,
+        "inputs": {
+            "real_dir": str(real_dir), "run": str(run), "checkpoint": str(checkpoint),
+            "real_videos": real.group_count, "real_clips": len(real),
+            "real_skipped": list(real.skipped), "sim_clips": len(nominal),
+            "sim_groups": len(set(nominal.groups.tolist())), "budget": budget.name,
+            "budget_settings": dataclasses.asdict(budget), "box": list(context.box),
+            "training_spec_key": train_spec.key(), "nominal_spec": spec.to_json(),
+            "alpha": alpha, "seed": seed, "device": device,
+        },
+        "rungs": {n: g.to_json() for n, g in gaps.items()},
+        "location": location,
+        "scored_rungs": rungs,
+        "candidates": {r.name: {**r.to_json(), "best": r.best} for r in results},
+        "null": null.to_json(),
+        "ranking": ranking,
+        "residual_stage": stage_of_residual(location),
+        "probes": probes,
+        "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
+        "timing": timing,
+    }  # fmt: skip
+    result = _finite(result)
+    sheet_rows = {"S (nominal simulation)": nominal_clips.frames[0]}
+    sheet_rows.update({f"R: {real.groups[i]}": real.frames[i] for i in _spread(len(real), 3)})
+    out_dir.mkdir(parents=True, exist_ok=True)
+    contact_sheet(out_dir / "clips.png", sheet_rows, context.box)
+    write_report(result, out_dir, extra_figures=("clips.png",))
+    return result
+
+
+def _label(candidate: Candidate, value) -> str:
+    return f"{candidate.name}@{value!r}"
+
+
+def _candidate_jobs(spec: DatasetSpec, plan: list[tuple]) -> list[SetJob]:
+    return [SetJob(_label(c, v), c.apply(spec, v)) for c, values in plan for v in values]
+
+
+REFINE_TOP = 5
+"""Candidates (best first) whose strength grid :func:`_refine` densifies."""
+
+
+def _refine(plan: list[tuple], results: list, mode: str) -> list[tuple]:
+    """The plan with midpoints on both sides of the best strength of the top candidates.
+
+    ``mode``: ``none``; ``visual`` (only candidates that re-render, which cost no
+    simulation); ``all``. Midpoints are geometric on log-spaced grids, else arithmetic.
+    """
+    if mode == "none":
+        return plan
+    order = sorted(range(len(plan)), key=lambda i: results[i].best_score, reverse=True)
+    chosen = set(order[:REFINE_TOP])
+    out = []
+    for i, (candidate, values) in enumerate(plan):
+        numeric = candidate.low is not None and not candidate.choices and len(values) >= 2
+        if i not in chosen or not numeric or (mode == "visual" and candidate.needs_simulation):
+            out.append((candidate, values))
+            continue
+        best = results[i].best
+        log = candidate.low > 0 and candidate.high / candidate.low > 4
+        extra = []
+        for j in (best - 1, best + 1):
+            if 0 <= j < len(values):
+                a, b = values[best], values[j]
+                mid = math.sqrt(a * b) if log else 0.5 * (a + b)
+                extra.append(round(mid) if candidate.integer else float(f"{mid:.6g}"))
+        out.append((candidate, tuple(sorted(set(values) | set(extra)))))
+    return out
+
+
+def _spread(count: int, want: int) -> list[int]:
+    return sorted({round(v) for v in np.linspace(0, count - 1, min(want, count))})
+
+
+def _strength_plan(chosen: list[Candidate], overrides: dict, count: int) -> list[tuple]:
+    unknown = sorted(set(overrides) - {c.name for c in chosen})
+    if unknown:
+        raise ValueError(
+            f"strengths: {unknown} are not among the chosen candidates {[c.name for c in chosen]}"
+        )
+    plan = []
+    for candidate in chosen:
+        values = overrides.get(candidate.name)
+        if values is None:
+            values = candidate.strengths(count)
+        else:
+            values = tuple(values)
+            for value in values:
+                candidate.check_strength(value)
+        plan.append((candidate, tuple(values)))
+    return plan
+
+
+def _finite(value):
+    """JSON-safe copy: NaN/inf become None, numpy scalars plain numbers, tuples lists."""
+    if isinstance(value, dict):
+        return {str(k): _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -1,0 +1,275 @@
+"""The diagnosis report: verdict, rung table, candidate ranking, probes.
+
+Written as ``report.json``, ``report.md``, ``report.html`` and PNG figures, each atomically.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from models.report import markdown_table, write_json, write_text
+from simulator.sequence import atomic_write_bytes
+
+__all__ = ["contact_sheet", "verdict", "write_report"]
+
+STAGE_COLOURS = {"scene": "#8c564b", "physics": "#1f77b4", "appearance": "#2ca02c",
+                 "camera": "#ff7f0e", "null": "#7f7f7f"}  # fmt: skip
+
+
+def _fmt(value, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}" if abs(value) < 1e-2 and value != 0 else f"{value:.{digits}f}"
+    return str(value)
+
+
+def _ci(pair) -> str:
+    return f"[{_fmt(pair[0])}, {_fmt(pair[1])}]"
+
+
+def verdict(result: dict) -> str:
+    """One paragraph answering the three questions from the result JSON."""
+    loc = result["location"]
+    ranking = result["ranking"]
+    gaps = result["rungs"]
+    if not loc["significant"]:
+        return (
+            "No rung shows a gap beyond the within-domain noise floor at the chosen level "
+            f"(Bonferroni-corrected alpha {loc['threshold']:.3g}): the simulated and real clips "
+            "are not distinguishable with this budget."
+        )
+    rung_text = ", ".join(
+        f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc["significant"]
+    )
+    parts = [f"The gap is significant on {rung_text}."]
+    if loc["first_significant_layer"]:
+        parts.append(
+            f"In the network it first appears at {loc['first_significant_layer']}; the largest "
+            f"rise is at {loc['jump_layer']}."
+        )
+    if ranking["explained"]:
+        top = result["candidates"][ranking["top"]]
+        strength = top["best_strength"]
+        parts.append(
+            f"The candidate that closes most of it is {ranking['top']} (stage {top['stage']}"
+            + ("" if strength is None else f", fitted strength {_fmt(strength)}")
+            + f"), closing {100 * top['best_score']:.0f} % of the floor-corrected gap on the "
+            f"scored rungs (threshold {100 * ranking['threshold']:.0f} %, a fresh nominal draw "
+            f"closes {100 * ranking['null_score']:.0f} %)."
+        )
+        if ranking["confusable_with_top"]:
+            parts.append(
+                "It cannot be told apart from " + ", ".join(ranking["confusable_with_top"]) + "."
+            )
+    else:
+        parts.append(
+            f"No candidate closes at least {100 * ranking['threshold']:.0f} % of it: "
+            f"unexplained residual at stage {result['residual_stage']}."
+        )
+    shrink = result.get("shrink")
+    if shrink is None:
+        parts.append("How far it shrinks after retraining was not measured in this run.")
+    return " ".join(parts)
+
+
+def _rung_rows(result: dict) -> list[list]:
+    rows = []
+    for name, gap in result["rungs"].items():
+        probe = result["probes"].get(name, {})
+        rows.append([
+            name, _fmt(gap["mmd2"]), _ci(gap["mmd2_ci"]), _fmt(gap["floor_mmd2"]),
+            _fmt(gap["auc"], 2), _ci(gap["auc_ci"]), _fmt(gap["floor_auc"], 2),
+            _fmt(gap["p_value"], 2), "yes" if name in result["location"]["significant"] else "",
+            _fmt(probe.get("stiffness_spearman"), 2), _fmt(probe.get("density_spearman"), 2),
+        ])  # fmt: skip
+    return rows
+
+
+_RUNG_HEADER = [
+    "rung", "MMD²", "95 % CI", "floor", "AUC", "95 % CI", "floor AUC", "p", "significant",
+    "probe ρ stiffness", "probe ρ density",
+]  # fmt: skip
+
+
+def _candidate_rows(result: dict) -> list[list]:
+    rows = []
+    rungs = result["scored_rungs"]
+    for rank, name in enumerate(result["ranking"]["ranking"], 1):
+        entry = result["candidates"][name]
+        best = entry["best"] if "best" in entry else int(np.argmax(entry["score"]))
+        closes = [f"{100 * entry['closure'][r][best]:.0f} %" for r in rungs]
+        lo, hi = entry["strength_interval"]
+        rows.append([
+            rank, name, entry["stage"], _fmt(entry["best_strength"]),
+            "" if lo is None else f"[{_fmt(lo)}, {_fmt(hi)}]",
+            f"{100 * entry['best_score']:.0f} %", *closes,
+        ])  # fmt: skip
+    null = result.get("null")
+    if null is not None:
+        closes = [f"{100 * null['closure'][r][0]:.0f} %" for r in rungs]
+        rows.append(["–", "S' (fresh nominal draw)", "null", "", "",
+                     f"{100 * null['best_score']:.0f} %", *closes])  # fmt: skip
+    return rows
+
+
+def _markdown(result: dict, figures: list[str]) -> str:
+    lines = [f"# Sim-to-real diagnosis: {result['name']}", "", verdict(result), ""]
+    info = result["inputs"]
+    lines += [
+        f"Real set: `{info['real_dir']}` ({info['real_videos']} videos, {info['real_clips']} "
+        f"clips; skipped as too short: {info['real_skipped'] or 'none'}). Run: `{info['run']}`. "
+        f"Simulated nominal set S: {info['sim_clips']} clips of {info['sim_groups']} "
+        f"simulations (training data settings, fresh seeds). Budget `{info['budget']}`.",
+        "",
+        "## 1. Where the gap lies",
+        "",
+        markdown_table(_RUNG_HEADER, _rung_rows(result)),
+        "MMD² on features standardised with S and R pooled; floors are the values expected "
+        "from group sampling alone (S vs S' split by simulation, R vs R' by video); p from group "
+        "permutations; probes: ridge of the class position trained on S, Spearman ρ of the "
+        "per-video prediction with the measured values on R.",
+        "",
+        "## 2. Which unmodelled effect",
+        "",
+        f"Scored rungs: {', '.join(result['scored_rungs']) or 'none'}. Score = mean fraction "
+        "of the floor-corrected gap closed at the fitted strength.",
+        "",
+        markdown_table(
+            [
+                "rank",
+                "candidate",
+                "stage",
+                "fitted strength",
+                "interval",
+                "score",
+                *[f"closes {r}" for r in result["scored_rungs"]],
+            ],
+            _candidate_rows(result),
+        ),
+        "Best score per stage: "
+        + ", ".join(
+            f"{s} {('–' if v is None else f'{100 * v:.0f} %')}"
+            for s, v in result["ranking"]["stage_scores"].items()
+        ),
+        "",
+        "## 3. How far it shrinks",
+        "",
+        "Not measured in this run (regenerating the training set with the fitted effect and "
+        "fine-tuning is not implemented yet).",
+        "",
+        "## Time",
+        "",
+        markdown_table(
+            ["stage", "seconds"],
+            [[k, f"{v:.1f}"] for k, v in result["timing"].items()],
+        ),
+        "",
+    ]
+    lines += [f"![{f}]({f})" for f in figures]
+    return "\n".join(lines) + "\n"
+
+
+def _html(markdown: str, result: dict, figures: list[str]) -> str:
+    """A self-contained page: the verdict, the tables (as preformatted Markdown) and figures."""
+    body = [f"<h1>Sim-to-real diagnosis: {html.escape(result['name'])}</h1>",
+            f"<p><b>Verdict.</b> {html.escape(verdict(result))}</p>"]  # fmt: skip
+    body += [f'<p><img src="{f}" style="max-width:100%"></p>' for f in figures]
+    body.append(f"<pre>{html.escape(markdown)}</pre>")
+    return (
+        "<!doctype html><html><head><meta charset='utf-8'><title>sim2real</title>"
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}"
+        "pre{font-size:12px;white-space:pre-wrap}</style></head><body>"
+        + "\n".join(body)
+        + "</body></html>\n"
+    )
+
+
+def _png(fig) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return buffer.getvalue()
+
+
+def _figures(result: dict, out_dir: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(result["rungs"])
+    gaps = [result["rungs"][n] for n in names]
+    fig, ax = plt.subplots(figsize=(9, 3.8), dpi=100)
+    auc = np.array([g["auc"] for g in gaps])
+    lo = np.array([g["auc_ci"][0] for g in gaps])
+    hi = np.array([g["auc_ci"][1] for g in gaps])
+    floor = np.array([np.nan if g["floor_auc"] is None else g["floor_auc"] for g in gaps])
+    colours = ["#d62728" if n in result["location"]["significant"] else "#7f7f7f" for n in names]
+    ax.bar(names, auc, color=colours, yerr=[auc - lo, hi - auc], capsize=3)
+    ax.plot(names, floor, "k_", markersize=18, label="noise floor (S vs S', R vs R')")
+    ax.set_ylim(0.3, 1.02)
+    ax.set_ylabel("domain AUC (S vs R)")
+    ax.set_title("Where the gap lies: red = significant after the floor")
+    ax.tick_params(axis="x", rotation=45)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    atomic_write_bytes(out_dir / "rungs.png", _png(fig))
+    plt.close(fig)
+
+    ranking = result["ranking"]["ranking"]
+    scores = [result["candidates"][n]["best_score"] for n in ranking]
+    stages = [result["candidates"][n]["stage"] for n in ranking]
+    fig, ax = plt.subplots(figsize=(9, 0.28 * len(ranking) + 1.4), dpi=100)
+    ax.barh(ranking[::-1], scores[::-1], color=[STAGE_COLOURS[s] for s in stages[::-1]])
+    ax.axvline(
+        result["ranking"]["threshold"], color="k", linestyle="--", label="open-set threshold"
+    )
+    ax.axvline(result["ranking"]["null_score"], color="#7f7f7f", linestyle=":",
+               label="fresh nominal draw S'")  # fmt: skip
+    ax.set_xlim(-1, 1)
+    ax.set_xlabel("fraction of the floor-corrected gap closed (scored rungs, fitted strength)")
+    ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    atomic_write_bytes(out_dir / "candidates.png", _png(fig))
+    plt.close(fig)
+    return ["rungs.png", "candidates.png"]
+
+
+def contact_sheet(path: Path, rows: dict[str, np.ndarray], box, frames: int = 5) -> None:
+    """PNG grid: one row of ``frames`` frames per named clip (uint8 (T, H, W, 3)), ROI drawn."""
+    import cv2
+
+    tiles = []
+    for label, clip in rows.items():
+        step = max(1, len(clip) // frames)
+        picked = [clip[i].copy() for i in range(0, step * frames, step)[:frames] if i < len(clip)]
+        y0, y1, x0, x1 = box
+        for frame in picked:
+            cv2.rectangle(frame, (x0, y0), (x1 - 1, y1 - 1), (255, 0, 0), 1)
+        strip = np.concatenate(picked, axis=1)
+        band = np.full((14, strip.shape[1], 3), 255, np.uint8)
+        cv2.putText(band, label, (2, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1)
+        tiles.append(np.concatenate([band, strip], axis=0))
+    width = max(t.shape[1] for t in tiles)
+    tiles = [
+        np.pad(t, ((0, 0), (0, width - t.shape[1]), (0, 0)), constant_values=255) for t in tiles
+    ]
+    ok, data = cv2.imencode(".png", np.concatenate(tiles, axis=0)[..., ::-1])
+    if not ok:
+        raise RuntimeError("cv2.imencode failed on the contact sheet")
+    atomic_write_bytes(path, data.tobytes())
+
+
+def write_report(result: dict, out_dir: Path, extra_figures: tuple[str, ...] = ()) -> None:
+    """Write ``report.json``, ``report.md``, ``report.html`` and the figures into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    figures = [*extra_figures, *_figures(result, out_dir)]
+    markdown = _markdown(result, figures)
+    write_json(out_dir / "report.json", result)
+    write_text(out_dir / "report.md", markdown)
+    write_text(out_dir / "report.html", _html(markdown, result, figures))

@@ -1,0 +1,287 @@
+"""Sealed pseudo-real sets: footage from our own generator with a withheld effect.
+
+``python -m sim2real.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
+from the seed alone, one or two effects of the candidate library at strengths inside their
+plausible ranges (or an effect outside the library: rolling shutter, vignetting, a tone
+curve, a stronger wind), plus nuisance differences (fresh textures and backgrounds, a slightly
+moved camera, the wind direction's jitter off nominal) and continuous materials (stretch and
+bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
+writes only what a real set has: one folder of PNG frames per video and ``labels.csv``
+(video, stiffness, density, wind, fps), with neutral names. The answer goes to a separate
+JSON file (default ``DIR.answer.json``) whose sha256 is printed; the diagnosis never reads it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from datasets.plan import SimulationPlan
+from datasets.spec import PRESETS, DatasetSpec, check_int
+from simulator.material import (
+    BASIS_MATERIAL,
+    BEND_MULTIPLIERS,
+    STRETCH_MULTIPLIERS,
+    ClothMaterial,
+    load_wang_material,
+)
+
+from .candidates import Candidate, candidate_library
+
+__all__ = ["OPEN_SET_EFFECTS", "SealKind", "draw_answer", "seal_set"]
+
+OPEN_SET_EFFECTS = {
+    "rolling_shutter": ("camera", (0.5, 1.0)),
+    "vignetting": ("camera", (0.3, 0.6)),
+    "tone_curve": ("camera", (0.55, 0.75)),
+    "wind_speed": ("scene", (1.4, 1.8)),
+}
+"""Effects no switch models: stage and strength range. Rolling shutter: readout time as a
+fraction of the frame interval; vignetting: darkening at the corners; tone curve: gamma
+(< 1 brightens the mid-tones); wind speed: factor on the scene's wind speeds."""
+
+SealKind = ("single", "pair", "open")
+_KIND_WEIGHTS = (0.5, 0.25, 0.25)
+_SEAL_STREAM = 7
+
+
+def _draw_strength(candidate: Candidate, rng: np.random.Generator):
+    if candidate.choices:
+        options = [c for c in candidate.choices if c != candidate.default]
+        return options[int(rng.integers(len(options)))]
+    if candidate.low is None:
+        return None
+    low, high = candidate.low, candidate.high
+    if low > 0 and high / low > 4:
+        value = math.exp(rng.uniform(math.log(low), math.log(high)))
+    else:
+        value = rng.uniform(low, high)
+    return round(value) if candidate.integer else float(f"{value:.4g}")
+
+
+def draw_answer(seed: int, library: dict[str, Candidate], kind: str | None = None) -> dict:
+    """The withheld effect(s) of sealed set ``seed`` (and its kind) drawn from the seed."""
+    rng = np.random.default_rng([seed, _SEAL_STREAM])
+    drawn_kind = SealKind[int(rng.choice(len(SealKind), p=_KIND_WEIGHTS))]
+    kind = kind or drawn_kind
+    if kind not in SealKind:
+        raise ValueError(f"kind must be one of {SealKind}, got {kind!r}")
+    names = sorted(library)
+    effects = []
+    if kind == "open":
+        open_names = sorted(OPEN_SET_EFFECTS)
+        name = open_names[int(rng.integers(len(open_names)))]
+        stage, (low, high) = OPEN_SET_EFFECTS[name]
+        strength = float(f"{rng.uniform(low, high):.4g}")
+        effects.append({"name": name, "stage": stage, "strength": strength, "library": False})
+    else:
+        count = 1 if kind == "single" else 2
+        picked = rng.choice(len(names), size=count, replace=False)
+        for i in sorted(int(p) for p in picked):
+            candidate = library[names[i]]
+            effects.append({
+                "name": candidate.name, "stage": candidate.stage,
+                "strength": _draw_strength(candidate, rng), "library": True,
+            })  # fmt: skip
+    return {"seed": seed, "kind": kind, "effects": effects}
+
+
+def _apply_open_set(frames: np.ndarray, name: str, strength: float) -> np.ndarray:
+    """An out-of-library image effect on uint8 frames (K, H, W, 3)."""
+    values = frames.astype(np.float32)
+    height, width = frames.shape[1:3]
+    if name == "rolling_shutter":  # row y shows time t + strength * y / H (next frame blend)
+        share = (strength * np.arange(height) / height)[None, :, None, None].astype(np.float32)
+        later = np.concatenate([values[1:], values[-1:]])
+        values = (1 - share) * values + share * later
+    elif name == "vignetting":
+        y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+        radius = np.hypot((x - width / 2) / (width / 2), (y - height / 2) / (height / 2))
+        values = values * (1 - strength * (radius / math.sqrt(2)) ** 2)[None, :, :, None]
+    elif name == "tone_curve":
+        values = 255.0 * (values / 255.0) ** strength
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+
+
+def _sealed_spec(base: DatasetSpec, answer: dict, rng: np.random.Generator) -> tuple:
+    """The pseudo-real set's spec (library effects on, nuisances applied) and the nuisances."""
+    library = candidate_library(base)
+    spec = base
+    for effect in answer["effects"]:
+        if effect["library"]:
+            spec = library[effect["name"]].apply(spec, effect["strength"])
+    shift = rng.uniform(-0.01, 0.01, size=3)
+    position = tuple(float(p + s) for p, s in zip(spec.camera.position, shift, strict=True))
+    scenario = spec.scenario
+    nuisance = {"camera_shift_m": shift.round(4).tolist()}
+    if hasattr(scenario, "wind_yaw_jitter_deg"):
+        jitter = float(max(0.0, scenario.wind_yaw_jitter_deg + rng.uniform(-3, 3)))
+        scenario = dataclasses.replace(scenario, wind_yaw_jitter_deg=jitter)
+        nuisance["wind_yaw_jitter_deg"] = round(jitter, 3)
+    for effect in answer["effects"]:
+        if effect["name"] == "wind_speed":
+            speeds = tuple(s * effect["strength"] for s in scenario.wind_speeds)
+            scenario = dataclasses.replace(scenario, wind_speeds=speeds)
+    spec = dataclasses.replace(
+        spec, camera=dataclasses.replace(spec.camera, position=position), scenario=scenario
+    )
+    return spec, nuisance
+
+
+def seal_set(
+    out: str | Path,
+    *,
+    base: DatasetSpec,
+    seed: int,
+    videos: int = 90,
+    clips_per_video: int = 4,
+    clip_len: int = 10,
+    kind: str | None = None,
+    answer: dict | None = None,
+    answer_path: str | Path | None = None,
+    overwrite: bool = False,
+) -> tuple[Path, str]:
+    """Write sealed set ``seed`` into ``out``; returns (answer file, its sha256).
+
+    Args:
+        out: The real-style folder to write (must not exist unless ``overwrite``).
+        base: The training data's spec (scene, level, texture mode, camera, settings).
+        seed: Decides everything withheld and every random draw.
+        videos: Videos; wind levels cycle W1, W2, W3 (Bouman et al.: 30 fabrics x 3 winds).
+        clips_per_video: Clips of ``clip_len`` frames each video is long enough for.
+        clip_len: Frames per clip.
+        kind: ``single``, ``pair`` or ``open`` (default: drawn from the seed).
+        answer: A given answer instead of a drawn one (tests plant a known effect).
+        answer_path: Where the answer goes (default: ``<out>.answer.json``).
+        overwrite: Replace an existing ``out``.
+    """
+    from datasets.generation import render_frames
+    from render.capsules import sequence_capsules
+    from simulator.rollout import simulate
+
+    check_int("seed", seed, low=0)
+    check_int("videos", videos, low=4)
+    check_int("clips_per_video", clips_per_video)
+    out = Path(out)
+    answer_path = Path(answer_path) if answer_path else out.with_name(out.name + ".answer.json")
+    if out.exists() and not overwrite:
+        raise ValueError(f"out: {out} exists; choose another folder or pass --overwrite")
+    library = candidate_library(base)
+    answer = answer or draw_answer(seed, library, kind)
+    rng = np.random.default_rng([seed, _SEAL_STREAM, 1])
+    spec, nuisance = _sealed_spec(base, answer, rng)
+    p = np.exp(rng.uniform(*np.log([min(STRETCH_MULTIPLIERS), max(STRETCH_MULTIPLIERS)]), videos))
+    k = np.exp(rng.uniform(*np.log([min(BEND_MULTIPLIERS), max(BEND_MULTIPLIERS)]), videos))
+    density_factor = rng.uniform(0.8, 1.25, videos)
+    basis = load_wang_material(BASIS_MATERIAL)
+    sim_seeds = [int(s) for s in rng.integers(1, 2**31 - 1, size=videos)]
+    winds = [i % len(spec.scenario.wind_speeds) if hasattr(spec.scenario, "wind_speeds") else 0
+             for i in range(videos)]  # fmt: skip
+    frame_count = spec.lead_in_frames + clips_per_video * clip_len
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    partial.mkdir(parents=True)
+    rows = ["video,stiffness,density,wind,fps"]
+    batch = 30
+    for first in range(0, videos, batch):
+        idx = list(range(first, min(videos, first + batch)))
+        material = ClothMaterial.from_wang(
+            basis, stretch_mult=p[idx].tolist(), bend_mult=k[idx].tolist(),
+            dtype=spec.sim.torch_dtype(),
+        )  # fmt: skip
+        material = dataclasses.replace(
+            material, density=material.density * material.density.new_tensor(density_factor[idx])
+        )
+        seq = simulate(
+            spec.scenario, material, seeds=[sim_seeds[i] for i in idx],
+            wind_levels=[winds[i] for i in idx], fps=spec.preset.fps,
+            record_time=(frame_count - 1) / spec.preset.fps, effects=spec.physics,
+            settings=spec.sim,
+        )  # fmt: skip
+        for b, i in enumerate(idx):
+            plan = SimulationPlan(-1, i, sim_seeds[i], winds[i], "test")
+            frames, _ = render_frames(
+                spec, seq, b, plan, spec.lead_in_frames, frame_count,
+                capsules=sequence_capsules(seq),
+                rng=np.random.default_rng([sim_seeds[i], _SEAL_STREAM, 2]),
+            )  # fmt: skip
+            for effect in answer["effects"]:
+                if not effect["library"] and effect["name"] in OPEN_SET_EFFECTS:
+                    if effect["name"] != "wind_speed":
+                        frames = _apply_open_set(frames, effect["name"], effect["strength"])
+            _write_frames(partial / f"v{i:03d}", frames)
+            density = basis.density * density_factor[i]
+            rows.append(f"v{i:03d},{k[i]:.6g},{density:.6g},W{winds[i] + 1},{spec.preset.fps:g}")
+    (partial / "labels.csv").write_text("\n".join(rows) + "\n")
+    if out.exists():
+        shutil.rmtree(out)
+    partial.rename(out)
+    answer = {**answer, "nuisance": nuisance, "videos": videos, "base_spec_key": base.key(),
+              "sealed_spec_key": spec.key()}  # fmt: skip
+    text = json.dumps(answer, indent=2, sort_keys=True) + "\n"
+    answer_path.write_text(text)
+    return answer_path, hashlib.sha256(text.encode()).hexdigest()
+
+
+def _write_frames(folder: Path, frames: np.ndarray) -> None:
+    import cv2
+
+    folder.mkdir(parents=True)
+    for t, frame in enumerate(frames):
+        if not cv2.imwrite(str(folder / f"frame_{t:04d}.png"), frame[..., ::-1]):
+            raise OSError(f"could not write {folder / f'frame_{t:04d}.png'}")
+
+
+def _base_spec(data_dir: str | None, level: int) -> DatasetSpec:
+    if data_dir:
+        from datasets.manifest import read_json
+
+        return DatasetSpec.from_json(read_json(Path(data_dir) / "spec.json")["spec"])
+    from simulator.rollout import SimSettings
+    from simulator.scenario import ScenarioWind
+
+    settings = SimSettings(max_dt=0.00834, settle_max_dt=0.0167, dtype="float32")
+    return DatasetSpec(
+        motion="wind", scenario=ScenarioWind(resolution_level=level), preset=PRESETS["full"],
+        lead_in=0.4, sim=settings,
+    )  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command line: write one sealed set and print its answer file's sha256."""
+    parser = argparse.ArgumentParser(
+        prog="python -m sim2real.seal", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--seed", type=int, required=True)
+    parser.add_argument("--out", required=True, help="folder to write (videos + labels.csv)")
+    parser.add_argument("--data-dir", help="training dataset folder (its spec.json is the base)")
+    parser.add_argument("--level", type=int, default=1, help="mesh level without --data-dir")
+    parser.add_argument("--videos", type=int, default=90)
+    parser.add_argument("--clips-per-video", type=int, default=4)
+    parser.add_argument("--kind", choices=SealKind, help="default: drawn from the seed")
+    parser.add_argument("--answer", help="answer file (default: <out>.answer.json)")
+    parser.add_argument("--overwrite", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        path, digest = seal_set(
+            args.out, base=_base_spec(args.data_dir, args.level), seed=args.seed,
+            videos=args.videos, clips_per_video=args.clips_per_video, kind=args.kind,
+            answer_path=args.answer, overwrite=args.overwrite,
+        )  # fmt: skip
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    print(f"sealed set: {args.out}")
+    print(f"answer: {path} sha256 {digest}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,196 @@
+"""Blind check of the diagnosis on sealed sets: seal, diagnose, then open the answer and score.
+
+``python -m sim2real.validate --sets N --run RUN [--data-dir D] [--out DIR]`` seals sets
+``first_seed .. first_seed + N - 1`` (:mod:`sim2real.seal`), diagnoses each one without its
+answer, and only then reads the answers and scores: stage correct, effect top-1 / top-3,
+fitted strength inside its interval, share of the floor-corrected gap closed by the true
+effect, open-set false attribution. Candidate sets do not depend on the real set, so they
+are built once and reused from the cache by every sealed set. Writes ``validation.md``
+(the table), ``validation.json`` and ``confusion.png`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .pipeline import Budget, load_run, run_diagnosis
+from .seal import seal_set
+
+__all__ = ["score_set", "summarise"]
+
+TARGETS = {
+    "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
+    "open_false_attribution": 0.10,
+}  # fmt: skip
+"""The issue's targets (false attribution: at most)."""
+
+
+def _predicted_stages(result: dict) -> set[str]:
+    ranking = result["ranking"]
+    if ranking["explained"]:
+        return {result["candidates"][ranking["top"]]["stage"]}
+    text = result["residual_stage"]
+    return {s for s in ("scene", "physics", "appearance", "camera") if s in text}
+
+
+def score_set(result: dict, answer: dict) -> dict:
+    """One sealed set's scores (answer opened only here)."""
+    truth = [e["name"] for e in answer["effects"] if e["library"]]
+    stages = {e["stage"] for e in answer["effects"]}
+    ranking = result["ranking"]
+    order = ranking["ranking"]
+    row = {
+        "seed": answer["seed"], "kind": answer["kind"],
+        "truth": [f"{e['name']}={e['strength']}" for e in answer["effects"]],
+        "predicted": ranking["top"] if ranking["explained"] else "unexplained",
+        "stage_correct": bool(_predicted_stages(result) & stages),
+    }  # fmt: skip
+    if answer["kind"] == "open":
+        row["false_attribution"] = bool(ranking["explained"])
+        return row
+    row["top1"] = bool(ranking["explained"] and ranking["top"] in truth)
+    row["top3"] = bool(set(order[:3]) & set(truth))
+    closed = [result["candidates"][n]["best_score"] for n in truth if n in result["candidates"]]
+    row["gap_closed"] = max(closed) if closed else None
+    if row["top1"]:
+        effect = next(e for e in answer["effects"] if e["name"] == ranking["top"])
+        lo, hi = result["candidates"][ranking["top"]]["strength_interval"]
+        strength = effect["strength"]
+        row["strength_in_interval"] = (
+            None if lo is None or not isinstance(strength, int | float) else lo <= strength <= hi
+        )
+    return row
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Rates over the scored sets (``None`` where no set applies)."""
+
+    def rate(key, kinds=None):
+        values = [r[key] for r in rows if key in r and r[key] is not None
+                  and (kinds is None or r["kind"] in kinds)]  # fmt: skip
+        return (float(np.mean(values)) if values else None), len(values)
+
+    out = {}
+    for key in ("stage_correct", "top1", "top3", "strength_in_interval"):
+        out[key], out[f"{key}_n"] = rate(key)
+    closed = [r["gap_closed"] for r in rows if r.get("gap_closed") is not None]
+    out["gap_closed_median"] = float(np.median(closed)) if closed else None
+    out["open_false_attribution"], out["open_n"] = rate("false_attribution")
+    return out
+
+
+def _confusion_png(path: Path, rows: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    truths = sorted({r["truth"][0].split("=")[0] for r in rows})
+    preds = sorted({r["predicted"] for r in rows} | set(truths))
+    matrix = np.zeros((len(truths), len(preds)))
+    for r in rows:
+        matrix[truths.index(r["truth"][0].split("=")[0]), preds.index(r["predicted"])] += 1
+    fig, ax = plt.subplots(figsize=(0.4 * len(preds) + 3, 0.35 * len(truths) + 2.5), dpi=100)
+    ax.imshow(matrix, cmap="Blues")
+    ax.set_xticks(range(len(preds)), preds, rotation=90, fontsize=7)
+    ax.set_yticks(range(len(truths)), truths, fontsize=7)
+    ax.set_xlabel("diagnosed (top-1 or unexplained)")
+    ax.set_ylabel("withheld effect (first of the set)")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _table(summary: dict, rows: list[dict]) -> str:
+    def pct(v):
+        return "–" if v is None else f"{100 * v:.0f} %"
+
+    lines = [
+        "| measure | target | measured | sets |", "|---|---|---|---|",
+        f"| stage correct | >= 90 % | {pct(summary['stage_correct'])} | "
+        f"{summary['stage_correct_n']} |",
+        f"| effect top-1 | >= 80 % | {pct(summary['top1'])} | {summary['top1_n']} |",
+        f"| effect top-3 | >= 95 % | {pct(summary['top3'])} | {summary['top3_n']} |",
+        f"| strength in interval | – | {pct(summary['strength_in_interval'])} | "
+        f"{summary['strength_in_interval_n']} |",
+        f"| gap closed by the true effect (median) | >= 50 % | {pct(summary['gap_closed_median'])} "
+        f"| {summary['top1_n']} |",
+        f"| open-set false attribution | <= 10 % | {pct(summary['open_false_attribution'])} | "
+        f"{summary['open_n']} |",
+        "| ranking stability (Kendall tau, 3 seeds) | >= 0.8 | not measured | – |",
+        "", "| seed | kind | withheld | diagnosed | stage | top-3 | gap closed |",
+        "|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for r in rows:
+        closed = r.get("gap_closed")
+        lines.append(
+            f"| {r['seed']} | {r['kind']} | {', '.join(r['truth'])} | {r['predicted']} | "
+            f"{'yes' if r['stage_correct'] else 'no'} | "
+            f"{'–' if 'top3' not in r else ('yes' if r['top3'] else 'no')} | "
+            f"{'–' if closed is None else f'{100 * closed:.0f} %'} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command line (see the module docstring)."""
+    parser = argparse.ArgumentParser(prog="python -m sim2real.validate",
+                                     description=__doc__.split("\n")[0])  # fmt: skip
+    parser.add_argument("--sets", type=int, required=True)
+    parser.add_argument("--run", required=True, help="training run folder or checkpoint")
+    parser.add_argument("--data-dir", help="the run's training dataset folder")
+    parser.add_argument("--out", default="outputs/sim2real/validation")
+    parser.add_argument("--first-seed", type=int, default=1000)
+    parser.add_argument("--videos", type=int, default=90)
+    parser.add_argument("--candidates", default="all", help="comma-separated names or stages")
+    parser.add_argument("--mesh-cache", default="data/mesh_cache")
+    parser.add_argument("--n-jobs", type=int, default=2)
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    try:
+        base, _ = load_run(args.run, args.data_dir)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    rows = []
+    for seed in range(args.first_seed, args.first_seed + args.sets):
+        start = time.perf_counter()
+        real = out / "sets" / f"set{seed}"
+        answer_path = out / "answers" / f"set{seed}.json"
+        answer_path.parent.mkdir(parents=True, exist_ok=True)
+        if not (real / "labels.csv").is_file() or not answer_path.is_file():
+            seal_set(real, base=base, seed=seed, videos=args.videos, answer_path=answer_path,
+                     overwrite=True)  # fmt: skip
+        result = run_diagnosis(
+            real_dir=real, run=args.run, data_dir=args.data_dir,
+            out_dir=out / "reports" / real.name, cache_dir=out / "cache",
+            mesh_cache=args.mesh_cache, budget=Budget(),
+            candidates=args.candidates.split(","), n_jobs=args.n_jobs, progress=False,
+        )  # fmt: skip
+        answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
+        row = score_set(result, answer)
+        row["minutes"] = (time.perf_counter() - start) / 60
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    summary = summarise(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "validation.json").write_text(json.dumps({"summary": summary, "sets": rows}, indent=2))
+    (out / "validation.md").write_text(_table(summary, rows))
+    _confusion_png(out / "confusion.png", rows)
+    print(_table(summary, rows))
+    print(
+        json.dumps(
+            {k: v for k, v in summary.items() if not isinstance(v, float) or math.isfinite(v)}
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,142 @@
+"""Localisation, candidate scoring and the open-set answer on planted feature shifts."""
+
+import numpy as np
+import pytest
+
+from sim2real.diagnosis import (
+    candidate_result,
+    localise,
+    probe_transfer,
+    rank_candidates,
+    rung_gaps,
+    scored_rungs,
+    stage_of_residual,
+)
+from sim2real.ladder import LadderFeatures
+
+GROUPS, CLIPS, DIM = 16, 3, 8
+PROJECTION = np.random.default_rng(99).normal(size=(8, 6))
+
+
+def _layer(pixel, motion):
+    """A 'network layer' that sees part of the pixels and part of the motion."""
+    return np.concatenate([pixel[:, :4], motion[:, :4]], axis=1) @ PROJECTION
+
+
+def _domain(seed, pixel_shift=None, motion_shift=None, stiffness=None):
+    rng = np.random.default_rng(seed)
+    groups = np.repeat([f"g{i}" for i in range(GROUPS)], CLIPS)
+    offsets = {k: np.repeat(rng.normal(0, 0.3, (GROUPS, DIM)), CLIPS, 0) for k in ("p", "m")}
+    pixel = offsets["p"] + rng.normal(size=(len(groups), DIM))
+    motion = offsets["m"] + rng.normal(size=(len(groups), DIM))
+    if pixel_shift is not None:
+        pixel = pixel + pixel_shift
+    if motion_shift is not None:
+        motion = motion + motion_shift
+    layer = _layer(pixel, motion)
+    class_id = np.repeat(np.arange(GROUPS) % 6 * 9, CLIPS)
+    return LadderFeatures(
+        rungs={"pixel": pixel, "motion": motion, "enc.block1": layer},
+        groups=groups, class_id=class_id,
+        stiffness=np.repeat(np.arange(1.0, GROUPS + 1), CLIPS) if stiffness is None else stiffness,
+        density=np.full(len(groups), 0.3),
+    )  # fmt: skip
+
+
+def _shifted(base: LadderFeatures, rung: str, shift) -> LadderFeatures:
+    rungs = dict(base.rungs)
+    rungs[rung] = rungs[rung] + shift
+    rungs["enc.block1"] = _layer(rungs["pixel"], rungs["motion"])
+    return LadderFeatures(rungs, base.groups, base.class_id, base.stiffness, base.density)
+
+
+def _shift(dims, size):
+    out = np.zeros(DIM)
+    out[list(dims)] = size
+    return out
+
+
+@pytest.fixture(scope="module")
+def planted():
+    """R = S's distribution with a pixel shift of 1.5 in dims 0-2 (a 'camera' effect)."""
+    sim = _domain(0)
+    real = _domain(1, pixel_shift=_shift([0, 1, 2], 1.5))
+    gaps = rung_gaps(sim, real, n_perm=199, n_boot=99, n_floor=6, seed=0)
+    return sim, real, gaps
+
+
+def test_the_gap_is_localised_on_the_planted_rung(planted):
+    _, _, gaps = planted
+    location = localise(gaps)
+    assert "pixel" in location["significant"]
+    assert "motion" not in location["significant"]
+    assert gaps["pixel"].corrected_auc > 0.5
+    assert scored_rungs(location)[0] == "pixel"
+    assert stage_of_residual(location).startswith("appearance or camera")
+
+
+def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
+    sim, real, gaps = planted
+    rungs = scored_rungs(localise(gaps))
+    sizes = (0.5, 1.5, 3.0)
+    right = candidate_result(
+        "visual.right", "camera", sizes,
+        [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes], sim, real, gaps, rungs,
+    )  # fmt: skip
+    wrong = candidate_result(
+        "visual.wrong", "camera", sizes,
+        [_shifted(sim, "pixel", _shift([4, 5, 6], a)) for a in sizes], sim, real, gaps, rungs,
+    )  # fmt: skip
+    physics = candidate_result(
+        "physics.wrong", "physics", sizes,
+        [_shifted(sim, "motion", _shift([0, 1], a)) for a in sizes], sim, real, gaps, rungs,
+    )  # fmt: skip
+    null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
+    ranking = rank_candidates([wrong, physics, right], null)
+    assert ranking["ranking"][0] == "visual.right"
+    assert ranking["explained"]
+    assert right.best_strength == 1.5
+    assert right.best_score > 0.6
+    assert wrong.best_score < 0.3 and physics.best_score < 0.3
+    assert ranking["stage_scores"]["camera"] == right.best_score
+    assert right.interval[0] <= 1.5 <= right.interval[1]
+
+
+def test_an_effect_outside_the_library_gives_the_open_set_answer(planted):
+    sim, _, _ = planted
+    real = _domain(2, pixel_shift=_shift([6, 7], 2.0))  # no candidate moves dims 6-7
+    gaps = rung_gaps(sim, real, n_perm=199, n_boot=99, n_floor=6, seed=1)
+    location = localise(gaps)
+    rungs = scored_rungs(location)
+    assert rungs
+    sizes = (0.5, 1.5, 3.0)
+    results = [
+        candidate_result(
+            f"visual.c{d}",
+            "camera",
+            sizes,
+            [_shifted(sim, "pixel", _shift([d], a)) for a in sizes],
+            sim,
+            real,
+            gaps,
+            rungs,
+        )
+        for d in (0, 1, 2)
+    ]
+    null = candidate_result("S'", "null", (None,), [_domain(8)], sim, real, gaps, rungs)
+    ranking = rank_candidates(results, null)
+    assert not ranking["explained"]
+    assert ranking["threshold"] >= 0.3
+
+
+def test_probes_transfer_only_where_the_real_labels_follow_the_features():
+    sim = _domain(3)
+    # R's stiffness follows its class ordering, like S's class id: the probe must find it
+    real = _domain(4)
+    real = LadderFeatures(real.rungs, real.groups, real.class_id,
+                          real.class_id.astype(float) + 1.0, real.density)  # fmt: skip
+    probes = probe_transfer(sim, real)
+    assert set(probes) == {"pixel", "motion", "enc.block1"}
+    for entry in probes.values():
+        assert -1 <= entry["stiffness_spearman"] <= 1
+        assert entry["density_spearman"] is None  # constant density: no correlation defined

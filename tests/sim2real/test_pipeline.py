@@ -1,0 +1,224 @@
+"""End to end on tiny data: seal a set with a planted effect, diagnose it, check the answer.
+
+The trained run is a randomly initialised CNN+LSTM saved as a checkpoint (the diagnosis only
+reads its layers); the training data is a tiny wind spec (32 x 32 frames, mesh level 1).
+"""
+
+import csv
+import hashlib
+import json
+
+import numpy as np
+import pytest
+import torch
+from hydra.utils import instantiate
+
+from datasets.manifest import write_json
+from datasets.spec import DatasetSpec, SizePreset
+from models.material_classifier import MaterialClassifierModule
+from render.camera import CameraSpec
+from sim2real.candidates import candidate_library
+from sim2real.pipeline import Budget, run_diagnosis
+from sim2real.seal import draw_answer, seal_set
+from simulator.rollout import SimSettings
+from simulator.scenario import ScenarioWind
+
+NET = {
+    "_target_": "models.components.video_nets.CNNLSTMNet",
+    "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
+                "name": "alexnet5", "feature_dim": 32, "width": 0.25},
+    "hidden_size": 16,
+}  # fmt: skip
+BUDGET = Budget(
+    name="test", class_stride=1, sims_per_class=2, clips_per_sim=2, strengths=3,
+    max_clips_per_video=None, n_perm=99, n_boot=99, n_floor=5,
+)  # fmt: skip
+CANDIDATES = ["visual.sensor_noise", "visual.defocus_blur", "visual.white_balance"]
+
+
+def _spec() -> DatasetSpec:
+    return DatasetSpec(
+        motion="wind", scenario=ScenarioWind(resolution_level=1, settle_time=0.2),
+        preset=SizePreset("tiny", sims_per_class=3, clips_per_sim=1, val_sims_per_class=1,
+                          test_sims_per_class=1, frames_per_clip=4),
+        classes=(0, 20, 33, 53), lead_in=0.2,
+        sim=SimSettings(dtype="float32", max_dt=0.00834, settle_max_dt=0.0167),
+        camera=CameraSpec.wind(32, 32), texture_size=64,
+    )  # fmt: skip
+
+
+def _checkpoint(path, net_config, classes=54):
+    config = {**net_config, "num_classes": classes}
+    torch.manual_seed(0)
+    module = MaterialClassifierModule(instantiate(config), net_config=config)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()},
+               path)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """Training-data spec, a run with a checkpoint, and a sealed set with sensor noise."""
+    root = tmp_path_factory.mktemp("sim2real")
+    spec = _spec()
+    write_json(root / "data" / "spec.json", {"key": spec.key(), "spec": spec.to_json()})
+    _checkpoint(root / "run" / "checkpoints" / "best.ckpt", NET)
+    answer = {
+        "seed": 1,
+        "kind": "single",
+        "effects": [
+            {"name": "visual.sensor_noise", "stage": "camera", "strength": 6.0, "library": True}
+        ],
+    }
+    answer_path, digest = seal_set(root / "real", base=spec, seed=1, videos=8, clips_per_video=2,
+                                   clip_len=4, answer=answer)  # fmt: skip
+    return {"root": root, "answer": answer_path, "digest": digest}
+
+
+def _diagnose(world, out, candidates=CANDIDATES, **changes):
+    root = world["root"]
+    kwargs = {
+        "real_dir": root / "real", "run": root / "run", "data_dir": root / "data",
+        "out_dir": out, "cache_dir": root / "cache", "mesh_cache": root / "meshes",
+        "budget": BUDGET, "candidates": candidates, "clip_len": 4, "clip_stride": 4,
+        "progress": False,
+    }  # fmt: skip
+    kwargs.update(changes)
+    return run_diagnosis(**kwargs)
+
+
+def test_sealed_set_holds_only_what_real_footage_has(world):
+    root = world["root"]
+    real = root / "real"
+    entries = sorted(p.name for p in real.iterdir())
+    assert entries == ["labels.csv", *[f"v{i:03d}" for i in range(8)]]
+    with open(real / "labels.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert list(rows[0]) == ["video", "stiffness", "density", "wind", "fps"]
+    assert all(float(r["stiffness"]) > 0 and float(r["density"]) > 0 for r in rows)
+    assert not (real / "answer.json").exists()
+    text = world["answer"].read_text()
+    assert hashlib.sha256(text.encode()).hexdigest() == world["digest"]
+    assert json.loads(text)["effects"][0]["name"] == "visual.sensor_noise"
+    frames = sorted((real / "v000").iterdir())
+    assert len(frames) == 8 and frames[0].suffix == ".png"
+
+
+def test_drawn_answers_cover_single_pair_and_open_kinds():
+    library = candidate_library(_spec())
+    kinds = {draw_answer(seed, library)["kind"] for seed in range(40)}
+    assert kinds == {"single", "pair", "open"}
+    pair = draw_answer(3, library, "pair")
+    assert len(pair["effects"]) == 2 and all(e["library"] for e in pair["effects"])
+    for effect in pair["effects"]:
+        candidate = library[effect["name"]]
+        if not candidate.binary:
+            candidate.check_strength(effect["strength"])
+    assert draw_answer(5, library) == draw_answer(5, library)
+
+
+def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_path):
+    out = tmp_path / "report"
+    result = _diagnose(world, out)
+    assert result["ranking"]["top"] == "visual.sensor_noise"
+    assert result["ranking"]["explained"]
+    assert "pixel" in result["location"]["significant"]
+    noise = result["candidates"]["visual.sensor_noise"]
+    assert noise["best_strength"] >= 2.0
+    assert len(noise["strengths"]) > 3  # the grid was refined around the best strength
+    for name in ("report.html", "report.md", "report.json", "rungs.png", "candidates.png",
+                 "clips.png"):  # fmt: skip
+        assert (out / name).stat().st_size > 0, name
+    saved = json.loads((out / "report.json").read_text())
+    assert saved["ranking"]["top"] == "visual.sensor_noise"
+    assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
+
+    # one more candidate: only its sets are built, everything else comes from the cache
+    again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"])
+    new_sets = len(again["candidates"]["visual.compression"]["strengths"])
+    assert again["sets"]["built"] == new_sets
+    assert again["sets"]["cached"] == again["sets"]["total"] - 1 - new_sets
+    assert again["ranking"]["top"] == "visual.sensor_noise"
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"candidates": ["visual.rain"]}, r"candidates: unknown \['visual.rain'\]"),
+        ({"strengths": {"visual.sensor_noise": [99.0]}}, r"noise_read_sigma.*\[0.5, 8.0\]"),
+        ({"data_dir": None}, r"\.hydra/config\.yaml"),
+        ({"n_jobs": 0}, "n_jobs must be an integer >= 1"),
+    ],
+)
+def test_bad_arguments_fail_with_one_clear_message_and_write_nothing(world, tmp_path, change,
+                                                                    message):  # fmt: skip
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        _diagnose(world, tmp_path / "out", **change)
+    assert not (tmp_path / "out").exists()
+
+
+HEADER = ("video", "stiffness", "density", "fps")
+
+
+def _real_folder(path, rows, frames=8):
+    path.mkdir()
+    header = rows[0]
+    for row in rows[1:]:
+        folder = path / row[0]
+        folder.mkdir()
+        import cv2
+
+        for t in range(frames):
+            image = np.random.default_rng(t).integers(0, 255, (32, 32, 3), dtype=np.uint8)
+            cv2.imwrite(str(folder / f"f{t:03d}.png"), image)
+    (path / "labels.csv").write_text("\n".join(",".join(r) for r in [header, *rows[1:]]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        ([("video", "stiffness")], r"lacks column\(s\) \['density'\]"),
+        ([("video", "stiffness", "density")], "lists no videos"),
+        ([("video", "stiffness", "density"), ("a", "soft", "0.3")], "must be a number"),
+        ([HEADER, *[(f"v{i}", "1", "-0.3", "15") for i in range(4)]],
+         r"column 'density' must be > 0"),
+        ([HEADER, ("v0", "1", "0.3", "15"), ("v1", "2", "0.3", "15")], "at least 4"),
+    ],
+)  # fmt: skip
+def test_bad_real_folders_fail_with_one_clear_message(world, tmp_path, rows, message):
+    real = _real_folder(tmp_path / "real", rows)
+    with pytest.raises(ValueError, match=message):
+        _diagnose(world, tmp_path / "out", real_dir=real)
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreadable_video_and_wrong_class_count_are_refused(world, tmp_path):
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "clip.mp4").write_bytes(b"not a video")
+    (real / "labels.csv").write_text("video,stiffness,density\nclip.mp4,1,0.3\n")
+    with pytest.raises(ValueError, match="cannot open video"):
+        _diagnose(world, tmp_path / "out", real_dir=real)
+    run = tmp_path / "run10"
+    _checkpoint(run / "checkpoints" / "best.ckpt", NET, classes=10)
+    with pytest.raises(ValueError, match="has 10 output classes"):
+        _diagnose(world, tmp_path / "out", run=run)
+    assert not (tmp_path / "out").exists()
+
+
+def test_command_lines_compose_and_fail_with_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "sim2real.diagnose", f"real_dir={tmp_path}/none",
+         f"run={tmp_path}/none", f"hydra.run.dir={tmp_path}/hydra"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines()[-1].startswith("error: run: ")
+    for module in ("sim2real.seal", "sim2real.validate"):
+        done = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True,
+                              text=True, timeout=300)  # fmt: skip
+        assert done.returncode == 0 and "usage:" in done.stdout
