@@ -42,6 +42,7 @@ def run(cfg: DictConfig) -> dict:
         clip_stride=int(cfg.clip_stride),
         alpha=float(cfg.alpha),
         seed=int(cfg.seed),
+        sim_seed=int(cfg.sim_seed),
         n_jobs=int(cfg.n_jobs),
         device=str(cfg.device),
         name=name,

@@ -33,11 +33,17 @@ from .diagnosis import (
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
 from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
-from .report import contact_sheet, write_report
+from .report import contact_sheet, json_safe, write_report
 
-__all__ = ["Budget", "SetJob", "load_run", "run_diagnosis"]
+__all__ = [
+    "Budget", "SetContext", "SetJob", "build_set", "load_run", "real_ladder", "run_diagnosis",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
+
+SIM_SEED_OFFSET, SIM_SEED_STEP = 1000, 10_000
+"""S's seeds: training seed + SIM_SEED_OFFSET + SIM_SEED_STEP x ``sim_seed`` (never trained on;
+another ``sim_seed`` draws every simulated set afresh: the ranking-stability check)."""
 
 NULL_SEED_OFFSET = 500
 """S' = the nominal set re-drawn with seeds this far from S's (the chance level of closure)."""
@@ -82,8 +88,8 @@ class SetJob:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Context:
-    """What every set job shares (picklable, sent to the worker processes)."""
+class SetContext:
+    """What every set's features depend on besides its spec (picklable, sent to workers)."""
 
     box: tuple[int, int, int, int]
     checkpoint: str
@@ -158,7 +164,7 @@ def _load_net(checkpoint: str, device: str):
 _NETS: dict = {}
 
 
-def _net(context: _Context):
+def _net(context: SetContext):
     key = (context.checkpoint, context.device)
     if key not in _NETS:
         _NETS.clear()
@@ -166,18 +172,18 @@ def _net(context: _Context):
     return _NETS[key]
 
 
-def _cache_path(context: _Context, key: str) -> Path:
+def _cache_path(context: SetContext, key: str) -> Path:
     return Path(context.cache_dir) / "features" / f"{key}.npz"
 
 
-def _sim_key(job: SetJob, context: _Context) -> str:
+def _sim_key(job: SetJob, context: SetContext) -> str:
     return content_key(
         kind="sim", spec=job.spec.key(), clip=[context.clip_len, context.clip_stride],
         box=list(context.box), net=context.checkpoint_digest,
     )  # fmt: skip
 
 
-def build_set(job: SetJob, context: _Context, threads: int = 1) -> tuple[str, dict]:
+def build_set(job: SetJob, context: SetContext, threads: int = 1) -> tuple[str, dict]:
     """Features of one simulated set (from the cache when present); returns (path, seconds).
 
     Runs in a worker process under joblib: one torch thread, its own renderer and net.
@@ -199,7 +205,7 @@ def build_set(job: SetJob, context: _Context, threads: int = 1) -> tuple[str, di
     }
 
 
-def _run_jobs(jobs: list[SetJob], context: _Context, n_jobs: int, progress: bool, timing: dict):
+def _run_jobs(jobs: list[SetJob], context: SetContext, n_jobs: int, progress: bool, timing: dict):
     from tqdm.auto import tqdm
 
     todo = [j for j in jobs if not _cache_path(context, _sim_key(j, context)).is_file()]
@@ -232,6 +238,23 @@ def _real_digest(real_dir: Path) -> str:
     return content_key(files=parts)
 
 
+def real_ladder(
+    real_dir: Path, clips: ClipSet, context: SetContext, *, fps: float, max_clips: int | None
+) -> LadderFeatures:
+    """The real clips on every rung of ``context``'s network (cached by content)."""
+    key = content_key(
+        kind="real", files=_real_digest(Path(real_dir)),
+        clip=[context.clip_len, context.clip_stride], fps=fps, size=int(clips.frames.shape[2]),
+        max_clips=max_clips, box=list(context.box), net=context.checkpoint_digest,
+    )  # fmt: skip
+    path = _cache_path(context, key)
+    if path.is_file():
+        return LadderFeatures.load(path)
+    features = ladder_features(clips, context.box, _net(context), device=context.device)
+    features.save(path)
+    return features
+
+
 def _check_real_labels(clips: ClipSet) -> None:
     for column in ("stiffness", "density"):
         values = getattr(clips, column)
@@ -255,6 +278,7 @@ def run_diagnosis(
     clip_stride: int = 10,
     alpha: float = 0.05,
     seed: int = 0,
+    sim_seed: int = 0,
     n_jobs: int = 1,
     device: str = "auto",
     name: str | None = None,
@@ -283,7 +307,8 @@ def run_diagnosis(
         raise ValueError("the training data's frames are not square; real clips are square crops")
     spec = diagnosis_spec(
         train_spec, classes=tuple(train_spec.classes[:: budget.class_stride]),
-        sims_per_class=budget.sims_per_class, clips_per_sim=budget.clips_per_sim, jobs=n_jobs,
+        sims_per_class=budget.sims_per_class, clips_per_sim=budget.clips_per_sim,
+        seed_offset=SIM_SEED_OFFSET + SIM_SEED_STEP * check_int("sim_seed", sim_seed, low=0),
     )  # fmt: skip
     library = candidate_library(spec)
     chosen = select_candidates(library, candidates)
@@ -306,7 +331,7 @@ def run_diagnosis(
     use_process_threads(1)
     nominal_clips = simulated_clips(spec, mesh_cache, clip_len=clip_len, clip_stride=clip_stride)
     box = roi_box(nominal_clips.coverage)
-    context = _Context(
+    context = SetContext(
         box=tuple(int(v) for v in box), checkpoint=str(checkpoint),
         checkpoint_digest=file_digest(checkpoint), mesh_cache=str(mesh_cache),
         cache_dir=str(cache_dir), clip_len=clip_len, clip_stride=clip_stride, device=device,
@@ -315,17 +340,8 @@ def run_diagnosis(
     timing["generate"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    real_key = content_key(
-        kind="real", files=_real_digest(real_dir), clip=[clip_len, clip_stride],
-        fps=spec.preset.fps, size=spec.camera.height, max_clips=budget.max_clips_per_video,
-        box=list(context.box), net=context.checkpoint_digest,
-    )  # fmt: skip
-    real_path = _cache_path(context, real_key)
-    if real_path.is_file():
-        real_features = LadderFeatures.load(real_path)
-    else:
-        real_features = ladder_features(real, context.box, net, device=device)
-        real_features.save(real_path)
+    real_features = real_ladder(real_dir, real, context, fps=spec.preset.fps,
+                                max_clips=budget.max_clips_per_video)  # fmt: skip
     nominal_path = _cache_path(context, _sim_key(SetJob("S", spec), context))
     if nominal_path.is_file():
         nominal = LadderFeatures.load(nominal_path)
@@ -386,12 +402,15 @@ def run_diagnosis(
         "name": name,
         "inputs": {
             "real_dir": str(real_dir), "run": str(run), "checkpoint": str(checkpoint),
+            "data_dir": None if data_dir is None else str(data_dir),
+            "mesh_cache": str(mesh_cache), "cache_dir": str(cache_dir),
+            "clip_len": clip_len, "clip_stride": clip_stride,
             "real_videos": real.group_count, "real_clips": len(real),
             "real_skipped": list(real.skipped), "sim_clips": len(nominal),
             "sim_groups": len(set(nominal.groups.tolist())), "budget": budget.name,
             "budget_settings": dataclasses.asdict(budget), "box": list(context.box),
             "training_spec_key": train_spec.key(), "nominal_spec": spec.to_json(),
-            "alpha": alpha, "seed": seed, "device": device,
+            "alpha": alpha, "seed": seed, "sim_seed": sim_seed, "device": device,
         },
         "rungs": {n: g.to_json() for n, g in gaps.items()},
         "location": location,
@@ -404,7 +423,7 @@ def run_diagnosis(
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
         "timing": timing,
     }  # fmt: skip
-    result = _finite(result)
+    result = json_safe(result)
     sheet_rows = {"S (nominal simulation)": nominal_clips.frames[0]}
     sheet_rows.update({f"R: {real.groups[i]}": real.frames[i] for i in _spread(len(real), 3)})
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -474,16 +493,3 @@ def _strength_plan(chosen: list[Candidate], overrides: dict, count: int) -> list
                 candidate.check_strength(value)
         plan.append((candidate, tuple(values)))
     return plan
-
-
-def _finite(value):
-    """JSON-safe copy: NaN/inf become None, numpy scalars plain numbers, tuples lists."""
-    if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

@@ -15,10 +15,23 @@ import numpy as np
 from models.report import markdown_table, write_json, write_text
 from simulator.sequence import atomic_write_bytes
 
-__all__ = ["contact_sheet", "verdict", "write_report"]
+__all__ = ["contact_sheet", "json_safe", "verdict", "write_report"]
 
 STAGE_COLOURS = {"scene": "#8c564b", "physics": "#1f77b4", "appearance": "#2ca02c",
                  "camera": "#ff7f0e", "null": "#7f7f7f"}  # fmt: skip
+
+
+def json_safe(value):
+    """JSON-safe copy: NaN/inf become None, numpy scalars plain numbers, tuples lists."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _fmt(value, digits: int = 3) -> str:
@@ -75,7 +88,60 @@ def verdict(result: dict) -> str:
     shrink = result.get("shrink")
     if shrink is None:
         parts.append("How far it shrinks after retraining was not measured in this run.")
+    else:
+        before = shrink["correlations"]["before"]
+        after = shrink["correlations"]["after"]
+        parts.append(
+            "After retraining with "
+            + ", ".join(e["name"] for e in shrink["effects"])
+            + ": Spearman ρ with measured stiffness "
+            f"{_fmt(before['stiffness']['spearman'], 2)} -> "
+            f"{_fmt(after['stiffness']['spearman'], 2)}, with density "
+            f"{_fmt(before['density']['spearman'], 2)} -> "
+            f"{_fmt(after['density']['spearman'], 2)}."
+        )
     return " ".join(parts)
+
+
+def _shrink_section(shrink: dict | None) -> list[str]:
+    if shrink is None:
+        return [
+            "Not measured in this run: `python -m sim2real.shrink --report <this folder>` "
+            "regenerates the training set with the fitted effect, fine-tunes and fills this in.",
+            "",
+        ]
+    effects = ", ".join(f"{e['name']} ({_fmt(e['strength'])})" for e in shrink["effects"])
+    rows = []
+    for target in ("stiffness", "density"):
+        for kind in ("pearson", "spearman"):
+            b = shrink["correlations"]["before"][target]
+            a = shrink["correlations"]["after"][target]
+            ci_b, ci_a = b[f"{kind}_ci"], a[f"{kind}_ci"]
+            rows.append([
+                target, kind, _fmt(b[kind], 2), "–" if ci_b is None else _ci(ci_b),
+                _fmt(a[kind], 2), "–" if ci_a is None else _ci(ci_a),
+            ])  # fmt: skip
+    gap_rows = [
+        [name, _fmt(r["corrected_auc_before"], 2), _fmt(r["corrected_auc_after"], 2),
+         _fmt(r.get("closure_predicted"), 2), _fmt(r["closure_realised"], 2)]
+        for name, r in shrink["rungs"].items()
+    ]  # fmt: skip
+    return [
+        f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
+        f"fine-tuned for {shrink['epochs']} epochs from the run's weights.",
+        "",
+        markdown_table(["measured", "r", "before", "95 % CI", "after", "95 % CI"], rows),
+        markdown_table(
+            [
+                "rung",
+                "corrected AUC before",
+                "after",
+                "closure predicted (section 2)",
+                "closure realised",
+            ],
+            gap_rows,
+        ),
+    ]
 
 
 def _rung_rows(result: dict) -> list[list]:
@@ -160,9 +226,7 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "",
         "## 3. How far it shrinks",
         "",
-        "Not measured in this run (regenerating the training set with the fitted effect and "
-        "fine-tuning is not implemented yet).",
-        "",
+        *_shrink_section(result.get("shrink")),
         "## Time",
         "",
         markdown_table(

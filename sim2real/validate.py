@@ -23,7 +23,7 @@ import numpy as np
 from .pipeline import Budget, load_run, run_diagnosis
 from .seal import seal_set
 
-__all__ = ["score_set", "summarise"]
+__all__ = ["ranking_stability", "score_set", "summarise"]
 
 TARGETS = {
     "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
@@ -69,6 +69,16 @@ def score_set(result: dict, answer: dict) -> dict:
     return row
 
 
+def ranking_stability(rankings: list[list[str]]) -> float:
+    """Mean pairwise Kendall tau between candidate rankings (same candidates, other draws)."""
+    from scipy.stats import kendalltau
+
+    names = sorted(rankings[0])
+    ranks = [[r.index(n) for n in names] for r in rankings]
+    taus = [kendalltau(a, b)[0] for i, a in enumerate(ranks) for b in ranks[i + 1 :]]
+    return float(np.mean(taus))
+
+
 def summarise(rows: list[dict]) -> dict:
     """Rates over the scored sets (``None`` where no set applies)."""
 
@@ -83,6 +93,9 @@ def summarise(rows: list[dict]) -> dict:
     closed = [r["gap_closed"] for r in rows if r.get("gap_closed") is not None]
     out["gap_closed_median"] = float(np.median(closed)) if closed else None
     out["open_false_attribution"], out["open_n"] = rate("false_attribution")
+    taus = [r["kendall_tau"] for r in rows if "kendall_tau" in r]
+    out["kendall_tau"] = float(np.mean(taus)) if taus else None
+    out["kendall_tau_n"] = len(taus)
     return out
 
 
@@ -124,7 +137,9 @@ def _table(summary: dict, rows: list[dict]) -> str:
         f"| {summary['top1_n']} |",
         f"| open-set false attribution | <= 10 % | {pct(summary['open_false_attribution'])} | "
         f"{summary['open_n']} |",
-        "| ranking stability (Kendall tau, 3 seeds) | >= 0.8 | not measured | – |",
+        "| ranking stability (Kendall tau, 3 simulation seeds) | >= 0.8 | "
+        + ("–" if summary["kendall_tau"] is None else f"{summary['kendall_tau']:.2f}")
+        + f" | {summary['kendall_tau_n']} |",
         "", "| seed | kind | withheld | diagnosed | stage | top-3 | gap closed |",
         "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
@@ -151,7 +166,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--videos", type=int, default=90)
     parser.add_argument("--candidates", default="all", help="comma-separated names or stages")
     parser.add_argument("--mesh-cache", default="data/mesh_cache")
+    parser.add_argument(
+        "--cache-dir",
+        help="feature cache (default: <out>/cache); share it with "
+        "diagnoses of the same run to reuse their candidate sets",
+    )
     parser.add_argument("--n-jobs", type=int, default=2)
+    parser.add_argument(
+        "--stability",
+        type=int,
+        default=0,
+        help="on the first N sets also diagnose with sim_seed 1 and 2 (Kendall tau)",
+    )
     args = parser.parse_args(argv)
     out = Path(args.out)
     try:
@@ -168,14 +194,25 @@ def main(argv: list[str] | None = None) -> None:
         if not (real / "labels.csv").is_file() or not answer_path.is_file():
             seal_set(real, base=base, seed=seed, videos=args.videos, answer_path=answer_path,
                      overwrite=True)  # fmt: skip
-        result = run_diagnosis(
-            real_dir=real, run=args.run, data_dir=args.data_dir,
-            out_dir=out / "reports" / real.name, cache_dir=out / "cache",
-            mesh_cache=args.mesh_cache, budget=Budget(),
-            candidates=args.candidates.split(","), n_jobs=args.n_jobs, progress=False,
-        )  # fmt: skip
+        common = {
+            "real_dir": real, "run": args.run, "data_dir": args.data_dir,
+            "cache_dir": Path(args.cache_dir) if args.cache_dir else out / "cache",
+            "mesh_cache": args.mesh_cache, "budget": Budget(),
+            "candidates": args.candidates.split(","), "n_jobs": args.n_jobs, "progress": False,
+        }  # fmt: skip
+        result = run_diagnosis(out_dir=out / "reports" / real.name, **common)
+        rankings = [result["ranking"]["ranking"]]
+        if len(rows) < args.stability:
+            for sim_seed in (1, 2):
+                again = run_diagnosis(
+                    out_dir=out / "reports" / f"{real.name}-sim{sim_seed}", sim_seed=sim_seed,
+                    **common,
+                )  # fmt: skip
+                rankings.append(again["ranking"]["ranking"])
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
         row = score_set(result, answer)
+        if len(rankings) > 1:
+            row["kendall_tau"] = ranking_stability(rankings)
         row["minutes"] = (time.perf_counter() - start) / 60
         rows.append(row)
         print(json.dumps(row), flush=True)

@@ -7,6 +7,7 @@ reads its layers); the training data is a tiny wind spec (32 x 32 frames, mesh l
 import csv
 import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -222,3 +223,45 @@ def test_command_lines_compose_and_fail_with_one_line(tmp_path):
         done = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True,
                               text=True, timeout=300)  # fmt: skip
         assert done.returncode == 0 and "usage:" in done.stdout
+
+
+def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp_path):
+    """A tiny trained run (config saved like Hydra does), diagnosed, then shrunk."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    import train as train_entry
+    from datasets.generation import generate_dataset
+    from sim2real.shrink import shrink
+
+    root = world["root"]
+    data = tmp_path / "train-data"
+    spec = _spec()
+    generate_dataset(spec, data, mesh_cache=root / "meshes", progress=False)
+    run = tmp_path / "logs" / "train" / "tiny"
+    configs = str(Path(__file__).resolve().parents[2] / "configs")
+    with initialize_config_dir(config_dir=configs, version_base="1.3"):
+        cfg = compose(config_name="train", overrides=[
+            f"dataset.dir={data}", f"paths.output_dir={run}", f"paths.log_dir={run.parent}",
+            f"paths.work_dir={run}", "encoder.width=0.25", "encoder.feature_dim=16",
+            "data.batch_size=2", "data.num_workers=0", "trainer.max_epochs=1", "~logger",
+            "callbacks.progress_bar=null", "callbacks.lr_monitor=null", "test=false",
+            "trainer.log_every_n_steps=1",
+        ])  # fmt: skip
+    (run / ".hydra").mkdir(parents=True)
+    OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
+    train_entry.train(cfg)
+    out = tmp_path / "report"
+    result = _diagnose(world, out, candidates=["visual.sensor_noise"], run=run, data_dir=None)
+    assert result["ranking"]["top"] == "visual.sensor_noise"
+    section = shrink(out, epochs=1, preset="same", n_jobs=1)
+    assert section["effects"][0]["name"] == "visual.sensor_noise"
+    for label in ("before", "after"):
+        for target in ("stiffness", "density"):
+            entry = section["correlations"][label][target]
+            assert entry["count"] == 8
+    assert set(section["rungs"]) == set(result["rungs"])
+    assert section["rungs"]["pixel"]["closure_predicted"] > 0.5
+    text = (out / "report.md").read_text()
+    assert "## 3. How far it shrinks" in text and "fine-tuned for 1 epochs" in text
+    assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 1

@@ -1,0 +1,67 @@
+"""Scoring of sealed sets: stage, top-1/top-3, strength interval, open set, Kendall tau."""
+
+import pytest
+
+from sim2real.validate import ranking_stability, score_set, summarise
+
+
+def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="none"):
+    ranking = ranking or [top, "visual.white_balance", "physics.air_damping", "visual.shadows"]
+    stages = {"visual.sensor_noise": "camera", "visual.white_balance": "camera",
+              "physics.air_damping": "physics", "visual.shadows": "appearance"}  # fmt: skip
+    return {
+        "ranking": {"ranking": ranking, "top": top, "explained": explained},
+        "residual_stage": residual,
+        "candidates": {
+            n: {
+                "stage": stages[n],
+                "best_score": 0.8 if n == top else 0.1,
+                "strength_interval": list(interval),
+            }
+            for n in ranking
+        },
+    }
+
+
+def _answer(name, strength=2.0, kind="single", stage="camera", library=True):
+    effect = {"name": name, "stage": stage, "strength": strength, "library": library}
+    return {"seed": 1, "kind": kind, "effects": [effect]}
+
+
+def test_a_correct_diagnosis_scores_everything():
+    row = score_set(_result("visual.sensor_noise"), _answer("visual.sensor_noise"))
+    assert row["stage_correct"] and row["top1"] and row["top3"]
+    assert row["strength_in_interval"] and row["gap_closed"] == 0.8
+    outside = score_set(_result("visual.sensor_noise", interval=(4.0, 8.0)),
+                        _answer("visual.sensor_noise"))  # fmt: skip
+    assert outside["strength_in_interval"] is False
+
+
+def test_a_wrong_top_in_the_right_stage_counts_as_stage_and_top3_only():
+    result = _result("visual.white_balance",
+                     ranking=["visual.white_balance", "visual.sensor_noise", "visual.shadows",
+                              "physics.air_damping"])  # fmt: skip
+    row = score_set(result, _answer("visual.sensor_noise"))
+    assert row["stage_correct"] and not row["top1"] and row["top3"]
+    assert row["gap_closed"] == 0.1
+
+
+def test_open_sets_score_false_attribution_and_residual_stage():
+    answer = _answer("vignetting", kind="open", library=False)
+    named = score_set(_result("visual.sensor_noise"), answer)
+    assert named["false_attribution"] and "top1" not in named
+    residual = score_set(
+        _result("visual.sensor_noise", explained=False,
+                residual="appearance or camera (the pixel statistics differ)"), answer,
+    )  # fmt: skip
+    assert not residual["false_attribution"] and residual["stage_correct"]
+    summary = summarise([named, residual, score_set(_result("visual.sensor_noise"),
+                                                    _answer("visual.sensor_noise"))])  # fmt: skip
+    assert summary["open_false_attribution"] == 0.5 and summary["open_n"] == 2
+    assert summary["top1"] == 1.0 and summary["top1_n"] == 1
+
+
+def test_kendall_tau_of_identical_and_reversed_rankings():
+    order = ["a", "b", "c", "d"]
+    assert ranking_stability([order, order, order]) == pytest.approx(1.0)
+    assert ranking_stability([order, order[::-1]]) == pytest.approx(-1.0)
