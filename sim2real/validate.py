@@ -55,8 +55,9 @@ def score_set(result: dict, answer: dict) -> dict:
     if answer["kind"] == "open":
         row["false_attribution"] = bool(ranking["explained"])
         return row
+    ranked = bool(result.get("scored_rungs", True))  # no significant gap: no ranking at all
     row["top1"] = bool(ranking["explained"] and ranking["top"] in truth)
-    row["top3"] = bool(set(order[:3]) & set(truth))
+    row["top3"] = ranked and bool(set(order[:3]) & set(truth))
     closed = [result["candidates"][n]["best_score"] for n in truth if n in result["candidates"]]
     row["gap_closed"] = max(closed) if closed else None
     if row["top1"]:

@@ -37,6 +37,12 @@ def test_a_correct_diagnosis_scores_everything():
     assert outside["strength_in_interval"] is False
 
 
+def test_without_a_significant_gap_nothing_counts_as_ranked():
+    result = _result("visual.sensor_noise", explained=False) | {"scored_rungs": []}
+    row = score_set(result, _answer("visual.sensor_noise"))
+    assert not row["top1"] and not row["top3"]
+
+
 def test_a_wrong_top_in_the_right_stage_counts_as_stage_and_top3_only():
     result = _result("visual.white_balance",
                      ranking=["visual.white_balance", "visual.sensor_noise", "visual.shadows",
