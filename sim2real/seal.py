@@ -36,7 +36,7 @@ from simulator.material import (
 
 from .candidates import Candidate, candidate_library
 
-__all__ = ["OPEN_SET_EFFECTS", "SealKind", "draw_answer", "seal_set"]
+__all__ = ["OPEN_SET_EFFECTS", "SEAL_KINDS", "draw_answer", "seal_set"]
 
 OPEN_SET_EFFECTS = {
     "rolling_shutter": ("camera", (0.5, 1.0)),
@@ -48,7 +48,7 @@ OPEN_SET_EFFECTS = {
 fraction of the frame interval; vignetting: darkening at the corners; tone curve: gamma
 (< 1 brightens the mid-tones); wind speed: factor on the scene's wind speeds."""
 
-SealKind = ("single", "pair", "open")
+SEAL_KINDS = ("single", "pair", "open")
 _KIND_WEIGHTS = (0.5, 0.25, 0.25)
 _SEAL_STREAM = 7
 
@@ -70,10 +70,10 @@ def _draw_strength(candidate: Candidate, rng: np.random.Generator):
 def draw_answer(seed: int, library: dict[str, Candidate], kind: str | None = None) -> dict:
     """The withheld effect(s) of sealed set ``seed`` (and its kind) drawn from the seed."""
     rng = np.random.default_rng([seed, _SEAL_STREAM])
-    drawn_kind = SealKind[int(rng.choice(len(SealKind), p=_KIND_WEIGHTS))]
+    drawn_kind = SEAL_KINDS[int(rng.choice(len(SEAL_KINDS), p=_KIND_WEIGHTS))]
     kind = kind or drawn_kind
-    if kind not in SealKind:
-        raise ValueError(f"kind must be one of {SealKind}, got {kind!r}")
+    if kind not in SEAL_KINDS:
+        raise ValueError(f"kind must be one of {SEAL_KINDS}, got {kind!r}")
     names = sorted(library)
     effects = []
     if kind == "open":
@@ -266,7 +266,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--level", type=int, default=1, help="mesh level without --data-dir")
     parser.add_argument("--videos", type=int, default=90)
     parser.add_argument("--clips-per-video", type=int, default=4)
-    parser.add_argument("--kind", choices=SealKind, help="default: drawn from the seed")
+    parser.add_argument("--kind", choices=SEAL_KINDS, help="default: drawn from the seed")
     parser.add_argument("--answer", help="answer file (default: <out>.answer.json)")
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
