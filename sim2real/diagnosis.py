@@ -21,6 +21,7 @@ a candidate library, :func:`diagnose`:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 
@@ -40,6 +41,7 @@ __all__ = [
     "rank_candidates",
     "rung_gaps",
     "scored_rungs",
+    "shapley_values",
 ]
 
 log = logging.getLogger(__name__)
@@ -250,6 +252,28 @@ def rank_candidates(results: list[CandidateResult], null: CandidateResult | None
         "confusable_with_top": confusable,
         "stage_scores": stages,
     }
+
+
+def shapley_values(players: list[str], value: dict[frozenset, float]) -> dict[str, float]:
+    """Exact Shapley values of a coalition game (few players: 2^n coalitions).
+
+    ``value`` maps every coalition (frozenset of players, the empty one included) to its
+    worth, here the share of the gap that the effects added together close. The values sum
+    to the grand coalition's worth (efficiency); an effect that only matters together with
+    another shares the joint gain with it instead of one of them taking it all.
+    """
+    count = len(players)
+    out = {}
+    for player in players:
+        others = [p for p in players if p != player]
+        total = 0.0
+        for size in range(count):
+            weight = math.factorial(size) * math.factorial(count - size - 1) / math.factorial(count)
+            for subset in itertools.combinations(others, size):
+                base = frozenset(subset)
+                total += weight * (value[base | {player}] - value[base])
+        out[player] = total
+    return out
 
 
 def stage_of_residual(location: dict) -> str:

@@ -9,6 +9,7 @@ is new; the report folder receives complete files only.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 import time
@@ -28,6 +29,7 @@ from .diagnosis import (
     rank_candidates,
     rung_gaps,
     scored_rungs,
+    shapley_values,
     stage_of_residual,
 )
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
@@ -64,6 +66,9 @@ class Budget:
     n_perm: int = 200
     n_boot: int = 200
     n_floor: int = 10
+    shapley_top: int = 3
+    """Candidates (best first, closing some of the gap) whose coalitions get Shapley values;
+    0 = none. Costs 2^n - n - 1 more sets."""
     refine: str = "visual"
     """Densify the strength grid around the best strength of the top candidates: ``none``,
     ``visual`` (re-rendered candidates only: no simulation) or ``all``."""
@@ -73,6 +78,7 @@ class Budget:
             raise ValueError(f"budget.refine must be none, visual or all, got {self.refine!r}")
         for name in ("class_stride", "sims_per_class", "clips_per_sim", "strengths", "n_floor"):
             check_int(f"budget.{name}", getattr(self, name))
+        check_int("budget.shapley_top", self.shapley_top, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
         if self.max_clips_per_video is not None:
@@ -395,6 +401,14 @@ def run_diagnosis(
     ranking = rank_candidates(results, null)
     probes = probe_transfer(nominal, real_features)
     timing["fit"] += time.perf_counter() - tick
+    coalitions = _coalition_plan(plan, results, budget.shapley_top)
+    extra = [SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()]
+    extra = [j for j in extra if j.label not in sets]
+    more, more_cached = _run_jobs(extra, context, n_jobs, progress, timing)
+    sets.update(more)
+    jobs += extra
+    cached += more_cached
+    shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs)
     timing["total"] = time.perf_counter() - start
 
     name = name or f"{real_dir.name}-{Path(run).name}"
@@ -418,6 +432,7 @@ def run_diagnosis(
         "candidates": {r.name: {**r.to_json(), "best": r.best} for r in results},
         "null": null.to_json(),
         "ranking": ranking,
+        "shapley": shapley,
         "residual_stage": stage_of_residual(location),
         "probes": probes,
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
@@ -430,6 +445,49 @@ def run_diagnosis(
     contact_sheet(out_dir / "clips.png", sheet_rows, context.box)
     write_report(result, out_dir, extra_figures=("clips.png",))
     return result
+
+
+def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
+    """Label -> spec builder of every coalition (2 or more) of the ``top`` best candidates.
+
+    Only candidates that close part of the gap play; each joins at its fitted strength.
+    """
+    order = sorted(range(len(plan)), key=lambda i: results[i].best_score, reverse=True)
+    players = [i for i in order[:top] if results[i].best_score > 0]
+    out = {}
+    for size in range(2, len(players) + 1):
+        for group in itertools.combinations(players, size):
+            members = [(plan[i][0], results[i].best_strength) for i in group]
+            label = "coalition:" + "+".join(c.name for c, _ in members)
+
+            def spec_of(spec, members=members):
+                for candidate, strength in members:
+                    spec = candidate.apply(spec, strength)
+                return spec
+
+            out[label] = spec_of
+    return out
+
+
+def _shapley(coalitions, results, sets, nominal, real, gaps, rungs) -> dict | None:
+    """Shapley values of the top candidates from the coalition sets (``None``: < 2 players)."""
+    if not coalitions:
+        return None
+    by_name = {r.name: r for r in results}
+    players = sorted({n for label in coalitions for n in label.split(":", 1)[1].split("+")})
+    value = {frozenset(): 0.0}
+    value.update({frozenset([n]): by_name[n].best_score for n in players})
+    for label in coalitions:
+        names = label.split(":", 1)[1].split("+")
+        scored = candidate_result(label, "coalition", (None,), [sets[label]], nominal, real,
+                                  gaps, rungs)  # fmt: skip
+        value[frozenset(names)] = scored.best_score
+    values = shapley_values(players, value)
+    return {
+        "players": players,
+        "values": values,
+        "coalitions": {"+".join(sorted(k)): v for k, v in value.items() if len(k) > 1},
+    }
 
 
 def _label(candidate: Candidate, value) -> str:

@@ -103,6 +103,20 @@ def verdict(result: dict) -> str:
     return " ".join(parts)
 
 
+def _shapley_lines(shapley: dict | None) -> list[str]:
+    if not shapley:
+        return []
+    rows = [[n, f"{100 * shapley['values'][n]:.0f} %"] for n in shapley["players"]]
+    rows += [[f"together: {k}", f"{100 * v:.0f} %"] for k, v in shapley["coalitions"].items()]
+    return [
+        "Interactions (exact Shapley values of the closure over coalitions of the top "
+        "candidates, each at its fitted strength; the values add up to what all of them close "
+        "together):",
+        "",
+        markdown_table(["candidate / coalition", "Shapley value / closure"], rows),
+    ]
+
+
 def _shrink_section(shrink: dict | None) -> list[str]:
     if shrink is None:
         return [
@@ -218,6 +232,7 @@ def _markdown(result: dict, figures: list[str]) -> str:
             ],
             _candidate_rows(result),
         ),
+        *_shapley_lines(result.get("shapley")),
         "Best score per stage: "
         + ", ".join(
             f"{s} {('–' if v is None else f'{100 * v:.0f} %')}"

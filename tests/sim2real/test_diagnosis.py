@@ -1,5 +1,7 @@
 """Localisation, candidate scoring and the open-set answer on planted feature shifts."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from sim2real.diagnosis import (
     rank_candidates,
     rung_gaps,
     scored_rungs,
+    shapley_values,
     stage_of_residual,
 )
 from sim2real.ladder import LadderFeatures
@@ -140,3 +143,20 @@ def test_probes_transfer_only_where_the_real_labels_follow_the_features():
     for entry in probes.values():
         assert -1 <= entry["stiffness_spearman"] <= 1
         assert entry["density_spearman"] is None  # constant density: no correlation defined
+
+
+def test_shapley_values_split_additive_and_joint_gains():
+    players = ["a", "b", "c"]
+    single = {"a": 0.5, "b": 0.2, "c": 0.0}
+    additive = {
+        frozenset(group): sum(single[p] for p in group)
+        for n in range(4) for group in itertools.combinations(players, n)
+    }  # fmt: skip
+    assert shapley_values(players, additive) == pytest.approx({"a": 0.5, "b": 0.2, "c": 0.0})
+    # a and b only work together (0.6); c adds 0.1 alone: the joint gain is shared equally
+    joint = {frozenset(): 0.0, frozenset("a"): 0.0, frozenset("b"): 0.0, frozenset("c"): 0.1,
+             frozenset("ab"): 0.6, frozenset("ac"): 0.1, frozenset("bc"): 0.1,
+             frozenset("abc"): 0.7}  # fmt: skip
+    values = shapley_values(players, joint)
+    assert values == pytest.approx({"a": 0.3, "b": 0.3, "c": 0.1})
+    assert sum(values.values()) == pytest.approx(joint[frozenset("abc")])  # efficiency

@@ -130,6 +130,10 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     for name in ("report.html", "report.md", "report.json", "rungs.png", "candidates.png",
                  "clips.png"):  # fmt: skip
         assert (out / name).stat().st_size > 0, name
+    shapley = result["shapley"]
+    assert shapley is not None and "visual.sensor_noise" in shapley["players"]
+    grand = shapley["coalitions"]["+".join(sorted(shapley["players"]))]
+    assert sum(shapley["values"].values()) == pytest.approx(grand)
     saved = json.loads((out / "report.json").read_text())
     assert saved["ranking"]["top"] == "visual.sensor_noise"
     assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
@@ -137,6 +141,7 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     # one more candidate: only its sets are built, everything else comes from the cache
     again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"])
     new_sets = len(again["candidates"]["visual.compression"]["strengths"])
+    new_sets += len(set(again["shapley"]["coalitions"]) - set(result["shapley"]["coalitions"]))
     assert again["sets"]["built"] == new_sets
     assert again["sets"]["cached"] == again["sets"]["total"] - 1 - new_sets
     assert again["ranking"]["top"] == "visual.sensor_noise"
