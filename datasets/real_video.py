@@ -29,7 +29,7 @@ from torch.utils.data import Dataset
 from .clip_dataset import clip_tensor
 from .spec import check_int
 
-__all__ = ["REQUIRED_COLUMNS", "RealVideoDataset", "read_labels"]
+__all__ = ["REQUIRED_COLUMNS", "RealVideoDataset", "clip_starts", "read_labels"]
 
 REQUIRED_COLUMNS = ("video", "stiffness", "density")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm")
@@ -58,6 +58,16 @@ def _number(value: str, column: str, row: int, path: Path) -> float:
     if not math.isfinite(out):
         raise ValueError(f"{path} row {row}: column {column!r} must be finite, got {value!r}")
     return out
+
+
+def clip_starts(frame_count: int, clip_len: int, clip_stride: int, step: int = 1) -> range:
+    """First source frames of the clips cut from a video of ``frame_count`` frames.
+
+    A clip takes every ``step``-th frame ``clip_len`` times; clips start every
+    ``clip_stride`` resampled frames. Simulated videos are cut by the same rule (``step`` 1).
+    """
+    span = (clip_len - 1) * step + 1
+    return range(0, frame_count - span + 1, clip_stride * step)
 
 
 def read_labels(root: Path) -> list[dict]:
@@ -127,9 +137,7 @@ class RealVideoDataset(Dataset):
         self.videos = [self._probe(row, i + 2) for i, row in enumerate(read_labels(root))]
         self.clips: list[tuple[int, int]] = []
         for v, video in enumerate(self.videos):
-            step = self.frame_step(video)
-            span = (clip_len - 1) * step + 1
-            starts = range(0, video.frame_count - span + 1, clip_stride * step)
+            starts = clip_starts(video.frame_count, clip_len, clip_stride, self.frame_step(video))
             if max_clips_per_video is not None:
                 starts = starts[:max_clips_per_video]
             self.clips.extend((v, s) for s in starts)

@@ -18,12 +18,12 @@ import numpy as np
 
 from datasets.generation import render_frames, simulate_unit
 from datasets.plan import plan_units
-from datasets.real_video import RealVideoDataset
+from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
 from render.capsules import sequence_capsules
 from simulator.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
 
-__all__ = ["ClipSet", "clip_starts", "diagnosis_spec", "real_clips", "simulated_clips"]
+__all__ = ["ClipSet", "diagnosis_spec", "real_clips", "simulated_clips"]
 
 _VIDEO_STREAM = 3  # the generator's clip stream; clip 0 of a simulation = its video
 
@@ -54,11 +54,6 @@ class ClipSet:
     def group_count(self) -> int:
         """Distinct groups."""
         return len(set(self.groups.tolist()))
-
-
-def clip_starts(frame_count: int, clip_len: int, clip_stride: int) -> range:
-    """First frames of the clips cut from a video of ``frame_count`` frames."""
-    return range(0, frame_count - clip_len + 1, clip_stride)
 
 
 def diagnosis_spec(
