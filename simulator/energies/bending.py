@@ -74,12 +74,14 @@ def _secant_integral(samples: torch.Tensor, kappa: torch.Tensor):
     inside = kappa < knots[-1]
     seg = (kappa.detach() / _SPACING).floor().clamp(0, last - 1).long()
     k_j = torch.gather(k_left, -1, seg[..., None])[..., 0]
-    m_j = torch.where(inside, torch.gather(slopes, -1, seg[..., None])[..., 0], 0.0)
+    m_seg = torch.gather(slopes, -1, seg[..., None])[..., 0]
+    m_j = torch.where(inside, m_seg, 0.0)
     lo = knots[seg]
     psi_lo = torch.gather(cumulative, -1, seg[..., None])[..., 0]
     k_last = samples[..., last]
     kap_in = torch.minimum(kappa, knots[-1])
-    psi = psi_lo + piece(k_j, m_j, lo, kap_in)
+    # The last segment is integrated with its slope up to the last knot, so psi is continuous.
+    psi = psi_lo + piece(k_j, m_seg, lo, kap_in)
     # Beyond the last sample the secant stiffness stays constant.
     psi = psi + torch.where(inside, 0.0, k_last * (kappa * kappa - knots[-1] ** 2) / 2)
     k_val = torch.where(inside, k_j + m_j * (kappa - lo), k_last)
