@@ -10,15 +10,25 @@ vertices, same pins, membrane stiffness and bending of the single instance's
 class, wind, duration, 5 ms step, ``integrator="discrete"``, Newton) and the
 script prints the ratio. Medians over ``--repeats``.
 
+Backends (``--backends kernels,torch``, the first is the headline): the compiled CPU kernels
+(:mod:`simulator.kernels`) and the torch path, run side by side. Accuracy: the single
+instance's trajectory (every 10th step) against a reference run of the same scene, the torch
+path or the kernels (``--reference-backend``) converged tightly (10 Newton iterations, CG to
+1e-10) at the same dt; mean and max
+vertex position difference per backend.
+
 Usage: ``python -m benchmarks.sim_bench [--repeats 3] [--batch-repeats 1] [--dtype float64]
-[--threads 1]`` (one torch thread by default, as every simulating process; see
-:mod:`simulator.threads`).
-The last line is JSON.
+[--threads 1] [--backends kernels,torch] [--skip-batch]`` (one thread by default, as every
+simulating process; see :mod:`simulator.threads`).
+The last line is JSON; its top level holds the headline backend's ``backend``,
+``pos_err_mean_m``, ``pos_err_max_m``, ``single_speedup_vs_mujoco`` and
+``ratio_batch54_vs_mujoco``, and ``runs`` every backend's figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import statistics
@@ -27,6 +37,7 @@ import time
 import torch
 
 from simulator.integrators import IntegratorBackwardEuler, solve_static
+from simulator.kernels import resolve_backend
 from simulator.material import ClothMaterial, class_summary
 from simulator.scenario import ScenarioWind
 from simulator.solvers import NewtonSettings
@@ -36,6 +47,13 @@ DT = 0.005
 DURATION = 2.0
 SINGLE_CLASS = 13  # p = 1, k = 5: membrane ~ camel-ponte-roma
 WIND_LEVEL = 2
+
+
+RECORD_EVERY = 10
+"""Steps between the positions kept for the accuracy comparison."""
+REFERENCE = NewtonSettings(max_iters=10, tol_dx=1e-9, cg_rtol=1e-10, cg_max_iters=2000)
+"""Tight solve of the accuracy reference; either backend gives the same trajectory to 1e-9 m
+(``tests/simulator/test_kernels.py``), the kernels in minutes instead of about 20."""
 
 
 def run_ours(classes: list[int], dtype: torch.dtype, settings: NewtonSettings) -> dict:
@@ -56,10 +74,13 @@ def run_ours(classes: list[int], dtype: torch.dtype, settings: NewtonSettings) -
     cg_total = 0
     if device == "cuda":
         torch.cuda.synchronize()
+    track = []
     start = time.perf_counter()
     for k in range(1, steps + 1):
         state, stats = integrator.step(model, state, driver.control(k * DT, state.pos), DT)
         cg_total += int(stats.cg_iters.max())
+        if k % RECORD_EVERY == 0:
+            track.append(state.pos[0].clone())
     if device == "cuda":
         torch.cuda.synchronize()
     wall = time.perf_counter() - start
@@ -70,7 +91,14 @@ def run_ours(classes: list[int], dtype: torch.dtype, settings: NewtonSettings) -
         "cg_iters_per_step_max": cg_total / steps,
         "finite": finite,
         "device": device,
+        "track": torch.stack(track).double().cpu(),
     }
+
+
+def position_error(track: torch.Tensor, reference: torch.Tensor) -> dict:
+    """Mean and max vertex position difference [m] of two (T, V, 3) trajectories."""
+    dist = torch.linalg.vector_norm(track - reference, dim=-1)
+    return {"pos_err_mean_m": float(dist.mean()), "pos_err_max_m": float(dist.max())}
 
 
 def summarise(walls: list[float], verts: int, instances: int) -> dict:
@@ -94,25 +122,50 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
     parser.add_argument("--skip-batch", action="store_true")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (0: one per core)")
+    parser.add_argument(
+        "--backends",
+        default="kernels,torch",
+        help="comma-separated: kernels, torch (first = headline)",
+    )
+    parser.add_argument(
+        "--reference-backend",
+        default="kernels",
+        choices=["kernels", "torch"],
+        help="backend of the tightly converged accuracy reference",
+    )
     args = parser.parse_args(argv)
     use_process_threads(args.threads or None)
+    backends = [b.strip() for b in args.backends.split(",") if b.strip()]
+    for backend in backends:
+        resolve_backend(backend, "cuda" if torch.cuda.is_available() else "cpu")
     dtype = getattr(torch, args.dtype)
-    settings = NewtonSettings(max_iters=1, cg_rtol=1e-2, cg_max_iters=200)
     verts = 32 * 32
-    single = [run_ours([SINGLE_CLASS], dtype, settings) for _ in range(args.repeats)]
+    reference_settings = dataclasses.replace(REFERENCE, backend=args.reference_backend)
+    reference = run_ours([SINGLE_CLASS], torch.float64, reference_settings)["track"]
     result = {
-        "machine": f"{platform.processor() or platform.machine()}, torch threads "
-        f"{torch.get_num_threads()}, device {single[0]['device']}",
+        "machine": f"{platform.processor() or platform.machine()}, threads "
+        f"{torch.get_num_threads()}",
         "dtype": args.dtype,
         "dt_s": DT,
-        "single": summarise([r["wall_s"] for r in single], verts, 1),
+        "backend": backends[0],
+        "reference_backend": args.reference_backend,
+        "runs": {},
     }
-    result["single"]["cg_iters_per_step"] = single[0]["cg_iters_per_step_max"]
-    if not args.skip_batch:
-        batch = [run_ours(list(range(54)), dtype, settings) for _ in range(args.batch_repeats)]
-        result["batch54"] = summarise([r["wall_s"] for r in batch], verts, 54)
-        result["batch54"]["cg_iters_per_step_max"] = batch[0]["cg_iters_per_step_max"]
-        result["batch54"]["finite"] = all(r["finite"] for r in batch)
+    for backend in backends:
+        settings = NewtonSettings(max_iters=1, cg_rtol=1e-2, cg_max_iters=200, backend=backend)
+        single = [run_ours([SINGLE_CLASS], dtype, settings) for _ in range(args.repeats)]
+        run = {
+            "device": single[0]["device"],
+            "single": summarise([r["wall_s"] for r in single], verts, 1),
+            **position_error(single[0]["track"], reference),
+        }
+        run["single"]["cg_iters_per_step"] = single[0]["cg_iters_per_step_max"]
+        if not args.skip_batch:
+            batch = [run_ours(list(range(54)), dtype, settings) for _ in range(args.batch_repeats)]
+            run["batch54"] = summarise([r["wall_s"] for r in batch], verts, 54)
+            run["batch54"]["cg_iters_per_step_max"] = batch[0]["cg_iters_per_step_max"]
+            run["batch54"]["finite"] = all(r["finite"] for r in batch)
+        result["runs"][backend] = run
 
     from benchmarks.mujoco_cloth import run_mujoco_cloth
 
@@ -142,19 +195,35 @@ def main(argv: list[str] | None = None) -> dict:
             "wall_s_per_sim_s",
         )
     }
-    if mj.get("available"):
-        ours_single = result["single"]["sim_vertex_seconds_per_wall_s"]
-        result["ratio_single_vs_mujoco"] = ours_single / mj["sim_vertex_seconds_per_wall_s"]
-        if "batch54" in result:
-            result["ratio_batch54_vs_mujoco"] = (
-                result["batch54"]["sim_vertex_seconds_per_wall_s"]
-                / mj["sim_vertex_seconds_per_wall_s"]
+    mj_rate = mj["sim_vertex_seconds_per_wall_s"] if mj.get("available") else None
+    for run in result["runs"].values():
+        if mj_rate:
+            run["single_speedup_vs_mujoco"] = (
+                run["single"]["sim_vertex_seconds_per_wall_s"] / mj_rate
             )
+            if "batch54" in run:
+                run["ratio_batch54_vs_mujoco"] = (
+                    run["batch54"]["sim_vertex_seconds_per_wall_s"] / mj_rate
+                )
+    headline = result["runs"][backends[0]]
+    for key in (
+        "pos_err_mean_m",
+        "pos_err_max_m",
+        "single_speedup_vs_mujoco",
+        "ratio_batch54_vs_mujoco",
+    ):
+        result[key] = headline.get(key)
 
-    print(f"{'run':<14}{'wall s':>10}{'wall s/sim s':>14}{'vert-s/s':>12}{'vert-steps/s':>14}")
-    rows = [("ours x1", result["single"])]
-    if "batch54" in result:
-        rows.append(("ours x54", result["batch54"]))
+    print(
+        f"{'run':<22}{'wall s':>10}{'wall s/sim s':>14}{'vert-s/s':>12}{'vert-steps/s':>14}"
+        f"{'err mean/max mm':>18}"
+    )
+    rows = []
+    for backend, run in result["runs"].items():
+        err = f"{1e3 * run['pos_err_mean_m']:.3f}/{1e3 * run['pos_err_max_m']:.3f}"
+        rows.append((f"ours {backend} x1", run["single"], err))
+        if "batch54" in run:
+            rows.append((f"ours {backend} x54", run["batch54"], ""))
     if mj.get("available"):
         rows.append(
             (
@@ -165,12 +234,14 @@ def main(argv: list[str] | None = None) -> dict:
                     "sim_vertex_seconds_per_wall_s": mj["sim_vertex_seconds_per_wall_s"],
                     "vertex_steps_per_s": mj["vertex_steps_per_wall_s"],
                 },
+                "",
             )
         )
-    for name, r in rows:
+    for name, r, err in rows:
         print(
-            f"{name:<14}{r['wall_s_median']:>10.2f}{r['wall_s_per_sim_s']:>14.2f}"
+            f"{name:<22}{r['wall_s_median']:>10.2f}{r['wall_s_per_sim_s']:>14.2f}"
             f"{r['sim_vertex_seconds_per_wall_s']:>12.0f}{r['vertex_steps_per_s']:>14.0f}"
+            f"{err:>18}"
         )
     print(json.dumps(result))
     return result

@@ -10,6 +10,7 @@ import torch
 from .effects import PhysicsEffects
 from .forces import AirDamping
 from .integrators import IntegratorBackwardEuler, SimulationDiverged, solve_static
+from .kernels import BACKENDS, resolve_backend
 from .material import ClothMaterial
 from .sequence import MeshSequence
 from .solvers.newton import NewtonSettings
@@ -33,6 +34,9 @@ class SimSettings:
     in scenes with a static solve, only has to come near the rest state, so it can take
     larger steps than the recorded motion."""
     cloth_model: str = "discrete_shell"
+    backend: str = "auto"
+    """``auto`` (compiled kernels on CPU, torch on CUDA), ``torch`` or ``kernels``
+    (:mod:`simulator.kernels`); overrides ``newton.backend``."""
     dtype: str = "float64"
     device: str = "auto"
     """``auto`` picks CUDA when present."""
@@ -46,12 +50,19 @@ class SimSettings:
             raise ValueError(f"sim.settle_max_dt must be > 0 s or null, got {self.settle_max_dt}")
         if not self.max_speed > 0:
             raise ValueError(f"sim.max_speed must be > 0 m/s, got {self.max_speed}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"sim.backend must be one of {list(BACKENDS)}, got {self.backend!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"sim.dtype must be 'float32' or 'float64', got {self.dtype!r}")
 
     def torch_dtype(self) -> torch.dtype:
         """The float dtype."""
         return getattr(torch, self.dtype)
+
+    def resolved_newton(self) -> NewtonSettings:
+        """The Newton settings with ``backend`` resolved for the device."""
+        backend = resolve_backend(self.backend, self.torch_device())
+        return dataclasses.replace(self.newton, backend=backend)
 
     def torch_device(self) -> torch.device:
         """The device, resolving ``auto``."""
@@ -118,7 +129,8 @@ def simulate(
     settle_dt = scenario.settle_time / settle_steps if settle_steps else dt
     frame_count = round(record_time * fps) + 1
     total = settle_steps + (frame_count - 1) * substeps
-    integrator = IntegratorBackwardEuler(settings.newton)
+    newton = settings.resolved_newton()
+    integrator = IntegratorBackwardEuler(newton)
     settle_model = dataclasses.replace(
         model, forces=(*model.forces, AirDamping(coefficient=settings.settle_damping))
     )
@@ -142,7 +154,7 @@ def simulate(
         cg_iters += stats.cg_iters
         _check_finite(state, settings.max_speed, step, time)
         if step == settle_steps and scenario.static_settle:
-            state = _static_polish(model, state, control)
+            state = _static_polish(model, state, control, newton.backend)
         if step >= settle_steps and (step - settle_steps) % substeps == 0:
             frames.append(state.pos.float().cpu())
         if bar is not None:
@@ -162,7 +174,7 @@ def simulate(
             "max_dt": settings.max_dt,
             "cloth_model": settings.cloth_model,
             "dtype": settings.dtype,
-            "newton": dataclasses.asdict(settings.newton),
+            "newton": dataclasses.asdict(newton),
         },
         "fps": fps,
         "record_start_time": scenario.settle_time,
@@ -182,11 +194,12 @@ def simulate(
     )
 
 
-def _static_polish(model, state, control):
+def _static_polish(model, state, control, backend: str):
     """Finish settling with a float64 static solve (float32 cannot reach its tolerance)."""
     f64 = torch.float64
+    settings = dataclasses.replace(_SETTLE_POLISH, backend=backend)
     rest, _ = solve_static(
-        model.to(dtype=f64), state.to(dtype=f64), control.to(dtype=f64), settings=_SETTLE_POLISH
+        model.to(dtype=f64), state.to(dtype=f64), control.to(dtype=f64), settings=settings
     )
     return rest.to(dtype=state.pos.dtype)
 

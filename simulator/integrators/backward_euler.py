@@ -15,7 +15,7 @@ import torch
 
 from ..model import SimControl, SimModel, SimState
 from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
-from .base import IncrementalPotential, begin_step, bind_energies, with_pins
+from .base import IncrementalPotential, begin_step, bind_energies, split_for_backend, with_pins
 
 __all__ = ["IntegratorBackwardEuler", "solve_static"]
 
@@ -39,7 +39,10 @@ class IntegratorBackwardEuler:
         settings = settings or self.settings
         energies, step_forces = begin_step(model, state, control, dt)
         x_pred = state.pos + dt * state.vel
-        objective = IncrementalPotential(model, energies, step_forces, state.pos, x_pred, dt)
+        shell, energies = split_for_backend(settings.backend, model, energies)
+        objective = IncrementalPotential(
+            model, energies, step_forces, state.pos, x_pred, dt, shell=shell
+        )
         x0 = with_pins(model, x_pred, control)
         x, stats = newton_minimize(
             objective, x0, model.free_mask(), settings, aggregates=model.aggregates
@@ -65,8 +68,9 @@ def solve_static(
         max_iters=50, tol_dx=1e-9, cg_rtol=1e-6, cg_max_iters=1000
     )
     energies = bind_energies(model, control, state.pos)
+    shell, energies = split_for_backend(settings.backend, model, energies)
     objective = IncrementalPotential(
-        model, energies, (), state.pos, state.pos, None, regularization=regularization
+        model, energies, (), state.pos, state.pos, None, regularization=regularization, shell=shell
     )
     x, stats = newton_minimize(
         objective, with_pins(model, state.pos, control), model.free_mask(), settings

@@ -14,6 +14,7 @@ __all__ = [
     "SimulationDiverged",
     "begin_step",
     "bind_energies",
+    "split_for_backend",
     "with_pins",
 ]
 
@@ -34,6 +35,18 @@ def begin_step(model, state, control, dt: float) -> tuple[tuple, tuple]:
     energies = bind_energies(model, control, state.pos)
     step_forces = tuple(f.linearize(model, state, control, energies) for f in model.forces)
     return energies, step_forces
+
+
+def split_for_backend(backend: str, model, energies: tuple) -> tuple:
+    """``(shell, energies)``: on ``kernels`` the compiled membrane + bending terms are split off.
+
+    ``shell`` is ``None`` on ``torch`` or when the model has no shell to compile.
+    """
+    if backend != "kernels":
+        return None, energies
+    from ..kernels.bridge import split_shell
+
+    return split_shell(model, energies)
 
 
 def with_pins(model, pos: torch.Tensor, control) -> torch.Tensor:
@@ -68,6 +81,9 @@ class IncrementalPotential:
     """Levenberg shift [N/m] added to the Hessian diagonal (static solves)."""
     velocity_dt: float | None = None
     """``h_v`` [s] of ``v = (x - x_start) / h_v``; ``None`` means ``dt``."""
+    shell: object | None = None
+    """Compiled membrane + bending terms (:class:`simulator.kernels.bridge.ShellKernel`) on the
+    ``kernels`` backend; ``energies`` then holds only the other terms."""
 
     def _mass(self) -> torch.Tensor:
         return self.model.vert_mass[..., None]
@@ -78,6 +94,8 @@ class IncrementalPotential:
     def value(self, x):
         """Objective per instance, shape (B,)."""
         total = sum(e.energy(self.model, x) for e in self.energies)
+        if self.shell is not None:
+            total = total + self.shell.value(x)
         if self.dt is None:
             return total
         h = self.dt
@@ -91,6 +109,8 @@ class IncrementalPotential:
     def gradient(self, x):
         """Gradient [N], shape (B, V, 3)."""
         grad = sum(e.gradient(self.model, x) for e in self.energies)
+        if self.shell is not None:
+            grad = grad + self.shell.gradient(x, self.model.pattern.cols.shape[1])
         if self.dt is None:
             return grad
         h = self.dt
@@ -109,6 +129,8 @@ class IncrementalPotential:
         else:
             diag = (self._mass() / (self.dt * self.dt))[..., None] * eye
         sparse = BlockSparse.zeros(self.model.pattern, batch, x) if self.model.pattern else None
+        if self.shell is not None:
+            sparse.values.add_(self.shell.hessian_values(x, sparse.values.shape[2]))
         loose: list[ElementBlocks] = []
         for energy in self.energies:
             b = energy.hessian_blocks(self.model, x)
@@ -117,6 +139,9 @@ class IncrementalPotential:
             if sparse is not None and b.topology is not None:
                 n = b.topology.shape[0]
                 sparse.add_elements(b.topology, b.blocks.view(batch, n, *b.blocks.shape[1:]))
+            elif sparse is not None and b.flat_indices.shape[1] == 1:
+                # Per-vertex blocks (capsule contact) belong on the diagonal.
+                sparse.add_vertex_blocks(b.diagonal_blocks(batch * verts).view(batch, verts, 3, 3))
             else:
                 loose.append(b)
         forces = self.step_forces if self.dt is not None else ()
@@ -142,6 +167,13 @@ class IncrementalPotential:
         for b in loose:
             full_diag = full_diag + b.diagonal_blocks(batch * verts).view(batch, verts, 3, 3)
 
+        # Vertices without any stiffness (static solve, pinned) keep an invertible block.
+        full_diag = (
+            full_diag + (full_diag.diagonal(dim1=-2, dim2=-1).sum(-1) <= 0)[..., None, None] * eye
+        )
+        if sparse is not None and not loose:
+            return sparse.matvec, full_diag, sparse
+
         def matvec(v):
             out = sparse.matvec(v) if sparse is not None else (diag @ v[..., None])[..., 0]
             flat = v.reshape(-1, 3)
@@ -149,8 +181,4 @@ class IncrementalPotential:
                 out = out + b.matvec(flat).view_as(v)
             return out
 
-        # Vertices without any stiffness (static solve, pinned) keep an invertible block.
-        full_diag = (
-            full_diag + (full_diag.diagonal(dim1=-2, dim2=-1).sum(-1) <= 0)[..., None, None] * eye
-        )
         return matvec, full_diag, sparse

@@ -50,6 +50,11 @@ class NewtonSettings:
     of the assembled block-sparse Hessian. Direct pays off for small, stiff 3D solids
     (near-incompressible tissue) where PCG needs hundreds of iterations per Newton step;
     it needs a model with a block-sparse pattern and reports 1 "CG iteration" per solve."""
+    backend: str = "torch"
+    """``torch`` (batched tensors; CPU and CUDA) or ``kernels``: compiled CPU kernels
+    (:mod:`simulator.kernels`) for the cloth shell energies and the two-level PCG, each
+    instance iterating on its own. Resolve ``auto`` with
+    :func:`simulator.kernels.resolve_backend` first."""
 
     def __post_init__(self):
         for name in ("max_iters", "cg_max_iters", "check_every"):
@@ -59,6 +64,10 @@ class NewtonSettings:
             raise ValueError(
                 f"NewtonSettings.preconditioner must be 'two_level' or 'jacobi', "
                 f"got {self.preconditioner!r}"
+            )
+        if self.backend not in ("torch", "kernels"):
+            raise ValueError(
+                f"NewtonSettings.backend must be 'torch' or 'kernels', got {self.backend!r}"
             )
         for name in ("tol_dx", "cg_rtol"):
             if not getattr(self, name) > 0:
@@ -117,10 +126,13 @@ def newton_minimize(
     cg_total = torch.zeros_like(newton_iters)
     max_update = torch.full((batch,), float("inf"), dtype=x0.dtype, device=device)
     eps = torch.finfo(x0.dtype).eps
-    value = objective.value(x) if settings.line_search else None
+    value = None
     for _ in range(settings.max_iters):
         grad = objective.gradient(x) * free
         matvec, diag, sparse = objective.hessian(x)
+        if settings.line_search and value is None:
+            # After the gradient: a fused objective has the value at x already.
+            value = objective.value(x)
 
         def masked_matvec(v, matvec=matvec):
             return matvec(v * free) * free
@@ -128,6 +140,18 @@ def newton_minimize(
         if settings.linear_solver == "direct":
             dx = direct_solve(sparse, matvec, -grad, free, active)
             cg_iters = active.long()
+        elif (
+            settings.backend == "kernels"
+            and settings.preconditioner == "two_level"
+            and aggregates is not None
+            and _whole_in_pattern(matvec, sparse)
+        ):
+            from ..kernels.bridge import solve_two_level
+
+            dx, cg_iters = solve_two_level(
+                sparse, diag, aggregates, free, -grad, active, settings.cg_rtol,
+                settings.cg_max_iters,
+            )  # fmt: skip
         else:
             if (
                 settings.preconditioner == "two_level"
@@ -175,6 +199,15 @@ def newton_minimize(
             break
     stats = StepStats(newton_iters, cg_total, max_update, max_update <= settings.tol_dx)
     return x, stats
+
+
+def _whole_in_pattern(matvec, sparse) -> bool:
+    """Whether the Hessian lives wholly in the block-sparse matrix.
+
+    Objectives return ``sparse.matvec`` itself as the product then; with terms outside the
+    pattern (self-collision pairs) they return a wrapper, and the torch PCG solves.
+    """
+    return sparse is not None and matvec == sparse.matvec
 
 
 def _coo_pattern(sparse) -> tuple:

@@ -1,0 +1,197 @@
+"""Torch side of the compiled kernels: what the Newton loop calls on ``backend='kernels'``.
+
+:class:`ShellKernel` stands in for a cloth model's membrane and bending energies inside the
+incremental potential (value, gradient and Hessian from one fused pass); :func:`solve_two_level`
+replaces the batched torch PCG by the per-instance compiled one. Everything else (gravity,
+contact, air, friction, damping) stays on the torch path, which is cheap next to these two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numba
+import numpy as np
+import torch
+
+from ..energies.bending import BEND_SCALE, EnergyBendingDihedral
+from ..energies.membrane import EnergyMembraneWang, _fibre_vectors
+from ..material import BEND_SAMPLE_CURVATURES, STRETCH_SAMPLE_STRAIN
+from .pcg import coarse_factor, coarse_matrix, pcg_two_level
+from .shell import shell_assemble, shell_energy
+
+__all__ = ["ShellKernel", "solve_two_level", "split_shell"]
+
+
+def _match_threads() -> None:
+    """Give numba's parallel loops as many threads as torch has, and keep torch's count.
+
+    That is one per simulating process by default (:mod:`simulator.threads`), so the kernels
+    never oversubscribe the CPU. numba's OpenMP layer shares libgomp with torch, and starting
+    its thread pool resets the shared count to one per core (measured: torch went from 1 to 2
+    threads on the 2-core machine), so torch's count is put back afterwards.
+    """
+    threads = torch.get_num_threads()
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    if torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+
+
+def _np(t: torch.Tensor) -> np.ndarray:
+    """A contiguous float64 (or int64) numpy view or copy of a CPU tensor."""
+    t = t.detach()
+    t = t.double() if t.is_floating_point() else t.long()
+    return np.ascontiguousarray(t.cpu().numpy())
+
+
+@dataclasses.dataclass(frozen=True)
+class ShellKernel:
+    """Membrane + bending energy of one cloth model, evaluated by the compiled kernels."""
+
+    geometry: tuple
+    """Mesh arrays in kernel order: tri, rest_inv, tri_area, then hinge arrays."""
+    slots: tuple
+    """ELL slots of the triangle (F, 3, 3) and hinge (E, 4, 4) blocks."""
+    params: tuple
+    """row0 (B, 4), fibres (B, 8), edge samples (B, E, 5), all float64."""
+    dtype: torch.dtype
+    _last: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+    @staticmethod
+    def build(model, membrane: EnergyMembraneWang, bending: EnergyBendingDihedral) -> ShellKernel:
+        """Kernel arrays of ``model``'s mesh and pattern and the two energies' parameters."""
+        mesh = model.mesh
+        geometry = (
+            _np(mesh.tri_indices),
+            _np(mesh.tri_rest_inv),
+            _np(mesh.tri_rest_area),
+            _np(_fibre_vectors(torch.float64, "cpu")),
+            _np(mesh.edge_indices),
+            _np(mesh.edge_rest_angle),
+            _np(mesh.edge_rest_length / mesh.edge_rest_area),
+            _np(mesh.edge_rest_area),
+            np.asarray(BEND_SAMPLE_CURVATURES, dtype=np.float64),
+        )
+        slots = (
+            _np(model.pattern.slot_map(mesh.tri_indices)),
+            _np(model.pattern.slot_map(mesh.edge_indices)),
+        )
+        params = (_np(membrane.row0), _np(membrane.fibres), _np(bending.edge_stiffness))
+        return ShellKernel(geometry, slots, params, model.vert_mass.dtype)
+
+    def _args(self):
+        tri, rest_inv, tri_area, fvec, hinges, rest_angle, scale, area, knots = self.geometry
+        row0, fibres, samples = self.params
+        membrane = (tri, rest_inv, tri_area)
+        return membrane, (row0, fibres, fvec, STRETCH_SAMPLE_STRAIN), (
+            hinges, rest_angle, scale, area, samples, knots, BEND_SCALE,
+        )  # fmt: skip
+
+    def value(self, x: torch.Tensor) -> torch.Tensor:
+        """Energy [J] per instance, shape (B,) (from the last fused pass when it was at ``x``)."""
+        last = self._last.get("x")
+        if last is not None and last[0] is x and last[1] == x._version:
+            return torch.from_numpy(self._last["out"][0].copy()).to(self.dtype)
+        (tri, rest_inv, tri_area), mem, bend = self._args()
+        _match_threads()
+        out = shell_energy(_np(x), tri, rest_inv, tri_area, *mem, *bend)
+        return torch.from_numpy(out).to(self.dtype)
+
+    def assemble(self, x: torch.Tensor, verts: int, width: int):
+        """``(energy (B,), gradient (B, V, 3), ELL values (B, V, K, 3, 3))`` at ``x``, float64.
+
+        The last result is kept, so the Newton loop's gradient and Hessian calls at one point
+        cost one pass.
+        """
+        last = self._last.get("x")
+        if last is not None and last[0] is x and last[1] == x._version:
+            return self._last["out"]
+        batch = x.shape[0]
+        energy = np.zeros(batch)
+        grad = np.zeros((batch, verts, 3))
+        values = np.zeros((batch, verts * width, 3, 3))
+        (tri, rest_inv, tri_area), mem, bend = self._args()
+        tri_slots, hinge_slots = self.slots
+        _match_threads()
+        shell_assemble(
+            _np(x), tri, rest_inv, tri_area, tri_slots, *mem, *bend, hinge_slots,
+            energy, grad, values,
+        )  # fmt: skip
+        out = (energy, grad, values.reshape(batch, verts, width, 3, 3))
+        self._last["x"] = (x, x._version)
+        self._last["out"] = out
+        return out
+
+    def gradient(self, x: torch.Tensor, width: int) -> torch.Tensor:
+        """dE/dx [N], shape (B, V, 3)."""
+        _, grad, _ = self.assemble(x, x.shape[1], width)
+        return torch.from_numpy(grad).to(self.dtype)
+
+    def hessian_values(self, x: torch.Tensor, width: int) -> torch.Tensor:
+        """PSD Hessian blocks in the ELL layout, shape (B, V, K, 3, 3)."""
+        _, _, values = self.assemble(x, x.shape[1], width)
+        return torch.from_numpy(values).to(self.dtype)
+
+
+def split_shell(model, energies: tuple) -> tuple[ShellKernel | None, tuple]:
+    """``(kernel, other energies)``: the membrane and bending terms taken over by a kernel.
+
+    Returns ``(None, energies)`` when the model is not a discrete-shell cloth with a
+    block-sparse pattern (mass-spring cloth, tissue), which then stays on the torch path.
+    """
+    membrane = [e for e in energies if type(e) is EnergyMembraneWang]
+    bending = [e for e in energies if type(e) is EnergyBendingDihedral]
+    if model.pattern is None or len(membrane) != 1 or len(bending) != 1:
+        return None, energies
+    if not hasattr(model.mesh, "tri_rest_inv"):
+        return None, energies
+    rest = tuple(e for e in energies if e is not membrane[0] and e is not bending[0])
+    key = (id(model.mesh), id(model.pattern), id(membrane[0]), id(bending[0]), model.batch_size)
+    hit = _BUILT.get(key)
+    if hit is None or hit[0] is not model.mesh or hit[1] is not membrane[0]:
+        if len(_BUILT) >= _BUILT_SIZE:
+            _BUILT.pop(next(iter(_BUILT)))
+        kernel = ShellKernel.build(model, membrane[0], bending[0])
+        # The objects are kept alive with the entry so their ids cannot be reused.
+        hit = _BUILT[key] = (model.mesh, membrane[0], bending[0], model.pattern, kernel)
+    return hit[4], rest
+
+
+_BUILT: dict = {}
+"""Kernel arrays of recent (mesh, pattern, membrane, bending): built once per rollout."""
+_BUILT_SIZE = 8
+
+
+def solve_two_level(
+    sparse, diag: torch.Tensor, aggregates: torch.Tensor, free: torch.Tensor,
+    rhs: torch.Tensor, active: torch.Tensor, rtol: float, max_iters: int,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Per-instance additive two-level PCG of the block-sparse system (see :mod:`.pcg`).
+
+    Args:
+        sparse: the whole Hessian as a :class:`BlockSparse` (values (B, V, K, 3, 3)).
+        diag: its diagonal blocks (B, V, 3, 3), made invertible at empty rows.
+        aggregates: coarse aggregate per vertex (V,).
+        free: 1 for free, 0 for pinned vertices, (V, 1) or (B, V, 1).
+        rhs: right-hand sides (B, V, 3), zero at pinned vertices.
+        active: instances still iterating, bool (B,).
+        rtol: relative residual tolerance.
+        max_iters: iteration cap.
+
+    Returns:
+        ``(solution (B, V, 3) in rhs's dtype, iterations (B,) int64)``.
+    """
+    batch, verts = rhs.shape[:2]
+    free_b = free.expand(batch, verts, 1) if free.dim() == 2 else free
+    free_np = _np(free_b[..., 0])
+    agg = _np(aggregates)
+    n_agg = int(agg.max()) + 1
+    values = _np(sparse.values)
+    cols = _np(sparse.pattern.cols)
+    _match_threads()
+    factor = coarse_factor(coarse_matrix(values, cols, agg, free_np, n_agg), agg, free_np)
+    x, iters, _ = pcg_two_level(
+        values, cols, _np(diag), agg, factor, free_np, _np(rhs), active.cpu().numpy(),
+        float(rtol), int(max_iters),
+    )  # fmt: skip
+    return torch.from_numpy(x).to(rhs), torch.from_numpy(iters)
