@@ -128,9 +128,12 @@ class IncrementalPotential:
             diag = x.new_full((batch, verts, 1, 1), self.regularization) * eye
         else:
             diag = (self._mass() / (self.dt * self.dt))[..., None] * eye
-        sparse = BlockSparse.zeros(self.model.pattern, batch, x) if self.model.pattern else None
+        pattern = self.model.pattern
         if self.shell is not None:
-            sparse.values.add_(self.shell.hessian_values(x, sparse.values.shape[2]))
+            # The kernel's fresh ELL array becomes the matrix; the other terms add into it.
+            sparse = BlockSparse(pattern, self.shell.hessian_values(x, pattern.cols.shape[1]))
+        else:
+            sparse = BlockSparse.zeros(pattern, batch, x) if pattern is not None else None
         loose: list[ElementBlocks] = []
         for energy in self.energies:
             b = energy.hessian_blocks(self.model, x)
@@ -161,7 +164,6 @@ class IncrementalPotential:
         if sparse is not None:
             sparse.add_vertex_blocks(diag)
             full_diag = sparse.diagonal()
-            sparse = sparse.finalize()
         else:
             full_diag = diag
         for b in loose:

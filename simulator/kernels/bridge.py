@@ -17,7 +17,7 @@ import torch
 from ..energies.bending import BEND_SCALE, EnergyBendingDihedral
 from ..energies.membrane import EnergyMembraneWang, _fibre_vectors
 from ..material import BEND_SAMPLE_CURVATURES, STRETCH_SAMPLE_STRAIN
-from .pcg import coarse_factor, coarse_matrix, pcg_two_level
+from .pcg import coarse_envelope, coarse_factor, coarse_matrix, pcg_two_level
 from .shell import shell_assemble, shell_energy
 
 __all__ = ["ShellKernel", "solve_two_level", "split_shell"]
@@ -97,15 +97,17 @@ class ShellKernel:
         out = shell_energy(_np(x), tri, rest_inv, tri_area, *mem, *bend)
         return torch.from_numpy(out).to(self.dtype)
 
-    def assemble(self, x: torch.Tensor, verts: int, width: int):
+    def assemble(self, x: torch.Tensor, verts: int, width: int, *, values_needed: bool = True):
         """``(energy (B,), gradient (B, V, 3), ELL values (B, V, K, 3, 3))`` at ``x``, float64.
 
         The last result is kept, so the Newton loop's gradient and Hessian calls at one point
-        cost one pass.
+        cost one pass. Values handed out by :meth:`hessian_values` are not kept (the caller
+        adds into them), so the result then holds ``None`` for them.
         """
         last = self._last.get("x")
         if last is not None and last[0] is x and last[1] == x._version:
-            return self._last["out"]
+            if values_needed is False or self._last["out"][2] is not None:
+                return self._last["out"]
         batch = x.shape[0]
         energy = np.zeros(batch)
         grad = np.zeros((batch, verts, 3))
@@ -124,12 +126,13 @@ class ShellKernel:
 
     def gradient(self, x: torch.Tensor, width: int) -> torch.Tensor:
         """dE/dx [N], shape (B, V, 3)."""
-        _, grad, _ = self.assemble(x, x.shape[1], width)
+        _, grad, _ = self.assemble(x, x.shape[1], width, values_needed=False)
         return torch.from_numpy(grad).to(self.dtype)
 
     def hessian_values(self, x: torch.Tensor, width: int) -> torch.Tensor:
-        """PSD Hessian blocks in the ELL layout, shape (B, V, K, 3, 3)."""
-        _, _, values = self.assemble(x, x.shape[1], width)
+        """PSD Hessian blocks in the ELL layout, shape (B, V, K, 3, 3), owned by the caller."""
+        energy, grad, values = self.assemble(x, x.shape[1], width)
+        self._last["out"] = (energy, grad, None)
         return torch.from_numpy(values).to(self.dtype)
 
 
@@ -189,9 +192,10 @@ def solve_two_level(
     values = _np(sparse.values)
     cols = _np(sparse.pattern.cols)
     _match_threads()
-    factor = coarse_factor(coarse_matrix(values, cols, agg, free_np, n_agg), agg, free_np)
+    first = coarse_envelope(cols, agg, n_agg)
+    factor = coarse_factor(coarse_matrix(values, cols, agg, free_np, n_agg), first, agg, free_np)
     x, iters, _ = pcg_two_level(
-        values, cols, _np(diag), agg, factor, free_np, _np(rhs), active.cpu().numpy(),
+        values, cols, _np(diag), agg, factor, first, free_np, _np(rhs), active.cpu().numpy(),
         float(rtol), int(max_iters),
     )  # fmt: skip
     return torch.from_numpy(x).to(rhs), torch.from_numpy(iters)

@@ -13,7 +13,27 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["coarse_factor", "coarse_matrix", "pcg_two_level"]
+__all__ = ["coarse_envelope", "coarse_factor", "coarse_matrix", "pcg_two_level"]
+
+
+@njit(cache=True, error_model="numpy")
+def coarse_envelope(cols, agg, n_agg):
+    """First possibly nonzero column of each coarse row (3A,): the matrix's envelope.
+
+    Aggregates are numbered along the grid, so each coarse row couples only to nearby
+    aggregates; the Cholesky factor stays inside this envelope, and factorisation and
+    substitutions skip the zeros outside it (measured: a quarter of the dense lower triangle
+    on the 32x32 cloth, about 18x fewer factorisation flops).
+    """
+    first = 3 * (np.arange(3 * n_agg) // 3)  # an aggregate's own 3x3 block
+    for i in range(cols.shape[0]):
+        ai = agg[i]
+        for k in range(cols.shape[1]):
+            aj = agg[cols[i, k]]
+            if aj < ai:
+                for d in range(3):
+                    first[3 * ai + d] = min(first[3 * ai + d], 3 * aj)
+    return first
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -46,31 +66,35 @@ def coarse_matrix(values, cols, agg, free, n_agg):
 
 
 @njit(cache=True, error_model="numpy")
-def _cholesky(mat, out) -> bool:
+def _cholesky(mat, first, out) -> bool:
     """Lower Cholesky factor of the lower triangle of ``mat`` into ``out``; False if not SPD.
 
-    Written out rather than LAPACK's, so that no BLAS thread pool runs inside numba's threads.
+    ``first`` is the envelope (:func:`coarse_envelope`): entries left of it are zero in
+    ``mat`` and stay zero in the factor. Written out rather than LAPACK's, so that no BLAS
+    thread pool runs inside numba's threads.
     """
     n = mat.shape[0]
     out[:] = 0.0
     for j in range(n):
         acc = mat[j, j]
-        for k in range(j):
+        for k in range(first[j], j):
             acc -= out[j, k] * out[j, k]
         if not acc > 0.0:
             return False
         d = np.sqrt(acc)
         out[j, j] = d
         for i in range(j + 1, n):
+            if first[i] > j:
+                continue
             acc = mat[i, j]
-            for k in range(j):
+            for k in range(max(first[i], first[j]), j):
                 acc -= out[i, k] * out[j, k]
             out[i, j] = acc / d
     return True
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def coarse_factor(coarse, agg, free):
+def coarse_factor(coarse, first, agg, free):
     """Lower Cholesky factors of the coarse matrices (B, 3A, 3A), made safely SPD first.
 
     As :func:`simulator.solvers.coarse._spd_inverse`: aggregates without a free vertex get an
@@ -90,27 +114,26 @@ def coarse_factor(coarse, agg, free):
         mat = coarse[b].copy()
         for p in range(n):
             mat[p, p] += ((1.0 if count[p // 3] <= 0 else 0.0) + 16 * eps) * scale
-        if not _cholesky(mat, out[b]):
+        if not _cholesky(mat, first, out[b]):
             for p in range(n):
                 mat[p, p] += 1e-6 * scale
-            _cholesky(mat, out[b])
+            _cholesky(mat, first, out[b])
     return out
 
 
 @njit(cache=True, inline="always")
-def _coarse_solve(factor, rc, ec):
-    """``ec = (L L^T)^-1 rc`` by forward and back substitution."""
+def _coarse_solve(factor, first, rc, ec):
+    """``ec = (L L^T)^-1 rc`` by forward and back substitution inside the envelope."""
     n = rc.shape[0]
     for p in range(n):
         acc = rc[p]
-        for q in range(p):
+        for q in range(first[p], p):
             acc -= factor[p, q] * ec[q]
         ec[p] = acc / factor[p, p]
     for p in range(n - 1, -1, -1):
-        acc = ec[p]
-        for q in range(p + 1, n):
-            acc -= factor[q, p] * ec[q]
-        ec[p] = acc / factor[p, p]
+        ec[p] /= factor[p, p]
+        for q in range(first[p], p):
+            ec[q] -= factor[p, q] * ec[p]
 
 
 @njit(cache=True, inline="always")
@@ -132,7 +155,7 @@ def _invert3(m, out):
 
 
 @njit(cache=True, inline="always")
-def _precondition(r, z, rc, ec, diag_inv, agg, factor, free):
+def _precondition(r, z, rc, ec, diag_inv, agg, factor, first, free):
     """``z = D^-1 r + P Ac^-1 P^T r`` on free vertices (additive two-level)."""
     verts = r.shape[0]
     rc[:] = 0.0
@@ -148,7 +171,7 @@ def _precondition(r, z, rc, ec, diag_inv, agg, factor, free):
                 + diag_inv[i, d, 1] * r[i, 1]
                 + diag_inv[i, d, 2] * r[i, 2]
             )
-    _coarse_solve(factor, rc, ec)
+    _coarse_solve(factor, first, rc, ec)
     for i in range(verts):
         if free[i] != 0.0:
             a = 3 * agg[i]
@@ -175,7 +198,7 @@ def _matvec(values, cols, free, p, out):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def pcg_two_level(values, cols, diag, agg, factor, free, rhs, active, rtol, max_iters):
+def pcg_two_level(values, cols, diag, agg, factor, first, free, rhs, active, rtol, max_iters):
     """Solve ``A x = rhs`` per instance with additive two-level PCG.
 
     Args:
@@ -184,6 +207,7 @@ def pcg_two_level(values, cols, diag, agg, factor, free, rhs, active, rtol, max_
         diag: diagonal blocks (B, V, 3, 3) (the smoother inverts them).
         agg: aggregate of each vertex (V,).
         factor: coarse Cholesky factors (B, 3A, 3A) from :func:`coarse_factor`.
+        first: their envelope (3A,) from :func:`coarse_envelope`.
         free: 1 for free, 0 for pinned (B, V).
         rhs: right-hand sides (B, V, 3), zero at pinned vertices.
         active: instances to solve (B,) bool; the others get zero.
@@ -213,7 +237,7 @@ def pcg_two_level(values, cols, diag, agg, factor, free, rhs, active, rtol, max_
         rhs_norm = math.sqrt(np.sum(r * r))
         if not rhs_norm > tiny:
             continue
-        _precondition(r, z, rc, ec, diag_inv, agg, factor[b], free[b])
+        _precondition(r, z, rc, ec, diag_inv, agg, factor[b], first, free[b])
         p = z.copy()
         rz = np.sum(r * z)
         res[b] = 1.0
@@ -232,7 +256,7 @@ def pcg_two_level(values, cols, diag, agg, factor, free, rhs, active, rtol, max_
             res[b] = math.sqrt(rr) / rhs_norm
             if res[b] <= rtol:
                 break
-            _precondition(r, z, rc, ec, diag_inv, agg, factor[b], free[b])
+            _precondition(r, z, rc, ec, diag_inv, agg, factor[b], first, free[b])
             rz_new = np.sum(r * z)
             beta = rz_new / rz if rz > tiny else 0.0
             for i in range(verts):

@@ -73,9 +73,10 @@ class BlockPattern:
 class BlockSparse:
     """A batch of block-sparse matrices sharing one :class:`BlockPattern`.
 
-    Assemble with :meth:`add_elements` / :meth:`add_vertex_blocks`, then call
-    :meth:`finalize` once, which lays rows out as (3, 3K) matrices so that a
-    product is a single batched matmul.
+    Assemble with :meth:`add_elements` / :meth:`add_vertex_blocks`; the first product lays
+    rows out as (3, 3K) matrices (or call :meth:`finalize`), so that a product is a single
+    batched matmul. Solvers that read ``values`` directly (the compiled kernels) never pay
+    for that layout.
     """
 
     pattern: BlockPattern
@@ -83,6 +84,10 @@ class BlockSparse:
     """3x3 blocks, shape (B, V, K, 3, 3)."""
     rows: torch.Tensor | None = None
     """Finalised row matrices, shape (B * V, 3, 3K)."""
+    _lazy_rows: dict = dataclasses.field(
+        default_factory=dict, init=False, compare=False, repr=False
+    )
+    """Row layout built by the first :meth:`matvec` of an unfinalised matrix."""
 
     @staticmethod
     def zeros(pattern: BlockPattern, batch: int, like: torch.Tensor) -> BlockSparse:
@@ -118,12 +123,24 @@ class BlockSparse:
 
     def finalize(self) -> BlockSparse:
         """Return the matrix with its product layout built."""
+        return dataclasses.replace(self, rows=self._row_layout())
+
+    def _row_layout(self) -> torch.Tensor:
         batch, verts, width = self.values.shape[:3]
         rows = self.values.permute(0, 1, 3, 2, 4).reshape(batch * verts, 3, 3 * width)
-        return dataclasses.replace(self, rows=rows.contiguous())
+        return rows.contiguous()
 
     def matvec(self, vec: torch.Tensor) -> torch.Tensor:
-        """Product with a field (B, V, 3); returns (B, V, 3). Needs :meth:`finalize`."""
+        """Product with a field (B, V, 3); returns (B, V, 3).
+
+        Unfinalised matrices build their row layout on the first product, so assemble
+        everything before multiplying.
+        """
+        rows = self.rows
+        if rows is None:
+            rows = self._lazy_rows.get("rows")
+            if rows is None:
+                rows = self._lazy_rows["rows"] = self._row_layout()
         batch, verts = vec.shape[:2]
         gathered = vec[:, self.pattern.cols].reshape(batch * verts, -1, 1)
-        return torch.bmm(self.rows, gathered).view(batch, verts, 3)
+        return torch.bmm(rows, gathered).view(batch, verts, 3)

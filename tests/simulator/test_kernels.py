@@ -17,7 +17,8 @@ from simulator.energies.bending import _secant_integral
 from simulator.integrators import IntegratorBackwardEuler
 from simulator.integrators.base import IncrementalPotential, begin_step
 from simulator.kernels import resolve_backend
-from simulator.kernels.bridge import solve_two_level, split_shell
+from simulator.kernels.bridge import _np, solve_two_level, split_shell
+from simulator.kernels.pcg import coarse_envelope, coarse_factor, coarse_matrix
 from simulator.material import BEND_SAMPLE_CURVATURES, ClothMaterial
 from simulator.rollout import SimSettings
 from simulator.scenario import ScenarioArmBend, ScenarioWind
@@ -127,6 +128,30 @@ def test_pcg_matches_torch_solution_and_iteration_counts():
     inactive = torch.tensor([True, False, True, False])
     part, iters = solve_two_level(sparse, diag, model.aggregates, free, rhs, inactive, 1e-6, 500)
     assert iters.tolist()[1::2] == [0, 0] and float(part[1::2].abs().max()) == 0.0
+
+
+def test_envelope_cholesky_factors_the_coarse_matrix():
+    model, state, driver = _wind()
+    reference, _ = _objectives(model, state, driver.control(0.005, state.pos), state.pos)
+    _, _, sparse = reference.hessian(_folded(state, seed=3, size=0.005))
+    batch, verts = state.pos.shape[:2]
+    agg, cols = _np(model.aggregates), _np(sparse.pattern.cols)
+    free = _np(model.free_mask().expand(batch, verts, 1)[..., 0])
+    n_agg = int(agg.max()) + 1
+    coarse = coarse_matrix(_np(sparse.values), cols, agg, free, n_agg)
+    first = coarse_envelope(cols, agg, n_agg)
+    rows, cols_ = np.nonzero(np.abs(coarse).sum(0))
+    assert (cols_[rows >= cols_] >= first[rows[rows >= cols_]]).all()  # nothing left of it
+    n = 3 * n_agg
+    assert (np.arange(n) - first + 1).sum() < 0.6 * n * (n + 1) / 2  # and it is not dense
+    factor = coarse_factor(coarse, first, agg, free)
+    for b in range(batch):
+        # The factor reproduces the matrix up to the 16-ulp diagonal shift (aggregates with
+        # free vertices only here), and is zero left of the envelope.
+        rel = np.abs(factor[b] @ factor[b].T - coarse[b]).max() / np.abs(coarse[b]).max()
+        assert rel < 1e-12
+        left = np.arange(3 * n_agg)[None, :] < first[:, None]
+        assert float(np.abs(factor[b][left]).max()) == 0.0
 
 
 def _rollout(scene, classes, backend, steps=50, dt=0.005, effects=ALL_ON):
