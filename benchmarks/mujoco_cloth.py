@@ -26,6 +26,7 @@ disabled (no colliders in the scene), Rayleigh damping is zero, and only ``mj_st
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import statistics
@@ -261,5 +262,18 @@ def run_mujoco_cloth(*, duration_s: float = 2.0, repeats: int = 3, **scene_kwarg
     }
 
 
+def main(argv: list[str] | None = None) -> dict:
+    """``python -m benchmarks.mujoco_cloth``: run the scene and print the result as JSON."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=2.0, help="simulated seconds per repeat")
+    parser.add_argument("--repeats", type=int, default=3, help="timed repeats")
+    args = parser.parse_args(argv)
+    if not args.duration > 0 or args.repeats < 1:
+        parser.error("--duration must be > 0 and --repeats >= 1")
+    result = run_mujoco_cloth(duration_s=args.duration, repeats=args.repeats)
+    print(json.dumps(result, indent=2))
+    return result
+
+
 if __name__ == "__main__":
-    print(json.dumps(run_mujoco_cloth(), indent=2))
+    main()

@@ -8,6 +8,7 @@ elements, one thread) and prints each result; the last line is JSON with ``pso_m
 
 from __future__ import annotations
 
+import argparse
 import json
 
 from simulator.inverse.benchmark_pso import run_pso_benchmark
@@ -16,8 +17,9 @@ from simulator.monocular.benchmark import run_mono_benchmark
 from simulator.threads import use_process_threads
 
 
-def main() -> dict:
+def main(argv: list[str] | None = None) -> dict:
     """Run the three benchmarks and print the summary JSON line."""
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)
     use_process_threads(1)
     pso = run_pso_benchmark()
     print("PSO:", json.dumps(pso))

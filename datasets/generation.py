@@ -11,10 +11,14 @@ multirun over ``worker.index`` with the submitit launcher, see the README).
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import multiprocessing
 import os
 import shutil
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +26,7 @@ import numpy as np
 from render.backgrounds import make_background
 from render.capsules import sequence_capsules
 from render.textures import make_texture
+from simulator.errors import InputError
 from simulator.material import ClothMaterial
 from simulator.rollout import simulate
 from simulator.sequence import MeshSequence
@@ -65,8 +70,17 @@ def renderer_for(spec: DatasetSpec):
     return _RENDERER["renderer"]
 
 
-def simulate_unit(spec: DatasetSpec, unit: WorkUnit, cache_dir: Path | None) -> MeshSequence:
-    """The unit's mesh sequence: from the cache when present, else simulated (and cached)."""
+def simulate_unit(
+    spec: DatasetSpec,
+    unit: WorkUnit,
+    cache_dir: Path | None,
+    *,
+    on_step: Callable[[int, int], None] | None = None,
+) -> MeshSequence:
+    """The unit's mesh sequence: from the cache when present, else simulated (and cached).
+
+    ``on_step(step, total)`` follows the rollout (see :func:`simulator.rollout.simulate`).
+    """
     path = None
     if cache_dir is not None:
         path = Path(cache_dir) / spec.physics_key() / f"{unit.name}.npz"
@@ -88,6 +102,7 @@ def simulate_unit(spec: DatasetSpec, unit: WorkUnit, cache_dir: Path | None) -> 
         effects=spec.physics,
         settings=spec.sim,
         labels=classes,
+        on_step=on_step,
     )
     if path is not None:
         seq.save(path)
@@ -137,10 +152,17 @@ def render_frames(
     )  # fmt: skip
 
 
-def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[str, list]:
+def render_unit(
+    spec: DatasetSpec,
+    unit: WorkUnit,
+    seq: MeshSequence,
+    *,
+    on_clip: Callable[[], None] | None = None,
+) -> dict[str, list]:
     """Render every clip of the unit: ``{split: [(key, record, frames, coverage, layers)]}``.
 
-    ``layers`` holds the render passes and the clip's background when ``store_passes``.
+    ``layers`` holds the render passes and the clip's background when ``store_passes``;
+    ``on_clip()`` is called after each clip (progress).
     """
     capsules = sequence_capsules(seq)
     preset = spec.preset
@@ -162,18 +184,40 @@ def render_unit(spec: DatasetSpec, unit: WorkUnit, seq: MeshSequence) -> dict[st
                 passes=layers is not None,
             )  # fmt: skip
             out[sim.split].append((record["key"], record, frames, coverage, layers))
+            if on_clip is not None:
+                on_clip()
     return out
 
 
 def run_unit(
-    spec: DatasetSpec, unit: WorkUnit, out_dir: Path, cache_dir: Path | None, threads: int
+    spec: DatasetSpec,
+    unit: WorkUnit,
+    out_dir: Path,
+    cache_dir: Path | None,
+    threads: int,
+    report: Callable[..., None] | None = None,
 ) -> dict:
-    """Simulate, render and write one unit; returns its index (also written to disk)."""
+    """Simulate, render and write one unit; returns its index (also written to disk).
+
+    ``report`` receives the unit's progress as it happens (it may live in another process):
+    ``report("sim", unit_index, step, total)`` about 50 times over the rollout and
+    ``report("clip", unit_index)`` after each rendered clip.
+    """
+    on_step = on_clip = None
+    if report is not None:
+
+        def on_step(step: int, total: int) -> None:
+            if step == total or step % max(1, total // 50) == 0:
+                report("sim", unit.index, step, total)
+
+        def on_clip() -> None:
+            report("clip", unit.index)
+
     start = time.perf_counter()
     with torch_threads(threads, name="threads_per_job"):  # part of what fixes the bytes
-        seq = simulate_unit(spec, unit, cache_dir)
+        seq = simulate_unit(spec, unit, cache_dir, on_step=on_step)
     sim_seconds = time.perf_counter() - start
-    rendered = render_unit(spec, unit, seq)
+    rendered = render_unit(spec, unit, seq, on_clip=on_clip)
     shards, clips = [], []
     for split in SPLITS:
         samples = rendered[split]
@@ -221,7 +265,7 @@ def _prepare_dir(spec: DatasetSpec, out_dir: Path, overwrite: bool) -> None:
         existing = read_json(spec_path)
         if existing.get("key") != spec.key():
             if not overwrite:
-                raise ValueError(
+                raise InputError(
                     f"out_dir {out_dir} holds a dataset of a different config "
                     f"(key {existing.get('key')} != {spec.key()}); choose another out_dir or "
                     "set overwrite=true"
@@ -327,31 +371,93 @@ def generate_dataset(
     return manifest
 
 
-def _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads, done, progress) -> None:
-    from tqdm import tqdm
+class _Progress:
+    """The generation's progress bar: one tick per rendered clip, ETA over the whole run.
 
-    clips = sum(len(u.sims) for u in pending) * spec.preset.clips_per_sim
-    bar = tqdm(total=clips, desc=f"generate {spec.motion}", unit="clip", disable=not progress)
+    A unit simulates all its simulations in one rollout before its first clip is rendered
+    (minutes for a full-size unit), so the bar also shows how far each unit's rollout is.
+    The ETA uses the average rate since the start (``smoothing=0``): clips arrive in bursts.
+    """
+
+    def __init__(self, spec: DatasetSpec, pending: list[WorkUnit], enabled: bool):
+        from tqdm import tqdm
+
+        clips = sum(len(u.sims) for u in pending) * spec.preset.clips_per_sim
+        self.bar = tqdm(
+            total=clips, desc=f"generate {spec.motion}", unit="clip", smoothing=0.0,
+            disable=not enabled,
+        )  # fmt: skip
+        self.rollouts: dict[int, float] = {}
+
+    def __call__(self, kind: str, unit: int, step: int = 0, total: int = 0) -> None:
+        """One report of :func:`run_unit`."""
+        if kind == "sim":
+            self.rollouts[unit] = step / max(total, 1)
+            if step >= total:
+                del self.rollouts[unit]
+            self._show_rollouts()
+        else:
+            self.bar.update(1)
+
+    def _show_rollouts(self) -> None:
+        text = ", ".join(
+            f"unit {unit} simulating {fraction:.0%}"
+            for unit, fraction in sorted(self.rollouts.items())
+        )
+        self.bar.set_postfix_str(text, refresh=True)
+
+    def close(self) -> None:
+        """Close the bar."""
+        self.bar.close()
+
+
+def _queue_reports(queue, progress: _Progress) -> None:
+    """Forward the workers' reports from ``queue`` to ``progress`` until a ``None``."""
+    while (message := queue.get()) is not None:
+        progress(*message)
+
+
+class _QueueReport:
+    """A picklable ``report`` for :func:`run_unit` in a worker process: puts on a queue."""
+
+    def __init__(self, queue):
+        self.queue = queue
+
+    def __call__(self, *message) -> None:
+        """Send one report."""
+        self.queue.put(message)
+
+
+def _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads, done, progress) -> None:
+    bar = _Progress(spec, pending, progress)
     timing = {"sim_seconds": 0.0, "render_seconds": 0.0, "frames": 0}
-    try:
+    with contextlib.ExitStack() as stack:
+        stack.callback(bar.close)
         if n_jobs == 1:
-            results = (run_unit(spec, u, out_dir, cache_dir, threads) for u in pending)
+            report = bar if progress else None
+            results = (run_unit(spec, u, out_dir, cache_dir, threads, report) for u in pending)
         else:
             from joblib import Parallel, delayed
 
+            report = None
+            if progress:  # workers report through a queue that a thread here reads
+                manager = stack.enter_context(multiprocessing.Manager())
+                queue = manager.Queue()
+                reader = threading.Thread(target=_queue_reports, args=(queue, bar), daemon=True)
+                reader.start()
+                stack.callback(reader.join)
+                stack.callback(queue.put, None)
+                report = _QueueReport(queue)
             os.environ.setdefault("LP_NUM_THREADS", "1")  # llvmpipe: one raster thread per job
             parallel = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
             results = parallel(
-                delayed(run_unit)(spec, u, out_dir, cache_dir, threads) for u in pending
+                delayed(run_unit)(spec, u, out_dir, cache_dir, threads, report) for u in pending
             )
         for result in results:
             index = result["index"]
             done[index["unit"]] = index
             for name in timing:
                 timing[name] += result[name]
-            bar.update(len(index["clips"]))
-    finally:
-        bar.close()
     log.info(
         "worker time: simulate %.1f s, render+write %.1f s (%.0f frames/s)",
         timing["sim_seconds"],

@@ -11,25 +11,97 @@
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from simulator.material import multipliers_from_class
+from simulator.sequence import atomic_write_bytes
+
 from .clip_dataset import ClothClipDataset
 
-__all__ = ["contact_sheet", "grid_video", "main"]
+__all__ = [
+    "class_lines",
+    "contact_sheet",
+    "draw_label",
+    "frame_strip",
+    "grid_video",
+    "label_height",
+    "label_panel",
+    "labelled_rows",
+    "main",
+    "tile_grid",
+    "write_mp4",
+    "write_png",
+]
 
-_LABEL_WIDTH = 150
+LABEL_WIDTH = 150
+"""Width [px] of the label panel left of each contact-sheet row."""
+_GAP = 4  # px of white after each frame strip (rows get 2 px)
+_LINE_STEP = 20  # px between label lines
 
 
-def _label(image: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.4) -> None:
-    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(
-        image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA
-    )
+def draw_label(image: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.4) -> None:
+    """Write ``text`` into ``image`` (uint8 RGB, in place): white on a black outline.
+
+    The outline keeps it readable over any texture or background. It is the thin text drawn
+    shifted by one pixel each way: OpenCV spaces thick text wider, so a thick outline would
+    drift away from the white letters along the line.
+    """
+    x, y = origin
+    font, line = cv2.FONT_HERSHEY_SIMPLEX, cv2.LINE_AA
+    for dx, dy in ((-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)):
+        cv2.putText(image, text, (x + dx, y + dy), font, scale, (0, 0, 0), 1, line)
+    cv2.putText(image, text, origin, font, scale, (255, 255, 255), 1, line)
+
+
+def class_lines(class_id: int) -> tuple[str, ...]:
+    """Label lines of a subspace class: its id, then its stretch and bend multipliers."""
+    stretch, bend = multipliers_from_class(int(class_id))
+    return (f"class {int(class_id)}", f"stretch x{stretch:g}", f"bend x{bend:g}")
+
+
+def label_panel(lines: Sequence[str], height: int, width: int) -> np.ndarray:
+    """A dark uint8 RGB panel of shape (height, width, 3) with ``lines`` written top-down.
+
+    The first line (the class) is written larger than the rest.
+    """
+    panel = np.full((height, width, 3), 40, np.uint8)
+    for i, text in enumerate(lines):
+        draw_label(panel, text, (6, 18 + _LINE_STEP * i), 0.5 if i == 0 else 0.4)
+    return panel
+
+
+def label_height(line_count: int) -> int:
+    """Height [px] of a :func:`label_panel` that shows ``line_count`` lines whole."""
+    return 12 + _LINE_STEP * line_count
+
+
+def frame_strip(frames: np.ndarray, count: int) -> np.ndarray:
+    """``count`` evenly spaced frames of ``frames`` (K, H, W, 3) side by side.
+
+    The strip ends in a white gap, so that strips put next to each other stay apart.
+    """
+    pick = np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int)
+    strip = np.concatenate([frames[t] for t in pick], axis=1)
+    return np.pad(strip, ((0, 0), (0, _GAP), (0, 0)), constant_values=255)
+
+
+def labelled_rows(rows: Sequence[tuple[Sequence[str], np.ndarray]]) -> np.ndarray:
+    """A contact sheet: each ``(lines, image)`` row with its label panel on the left.
+
+    Rows are stacked top to bottom, padded white to the widest one.
+    """
+    out = [
+        np.concatenate([label_panel(lines, image.shape[0], LABEL_WIDTH), image], axis=1)
+        for lines, image in rows
+    ]
+    width = max(r.shape[1] for r in out)
+    out = [np.pad(r, ((0, 2), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in out]
+    return np.concatenate(out, axis=0)
 
 
 def _by_class(data: ClothClipDataset) -> dict[int, list[int]]:
@@ -53,21 +125,9 @@ def contact_sheet(
                 seen.add(sim)
             if len(chosen) == clips_per_class:
                 break
-        tiles = []
-        for i in chosen:
-            _, frames = data.read(i)
-            pick = np.linspace(0, len(frames) - 1, min(frames_per_clip, len(frames))).round()
-            clip = np.concatenate([frames[int(t)] for t in pick], axis=1)
-            tiles.append(np.pad(clip, ((0, 0), (0, 4), (0, 0)), constant_values=255))
-        row = np.concatenate(tiles, axis=1)
-        record = data.records[chosen[0]]
-        label = np.full((row.shape[0], _LABEL_WIDTH, 3), 40, np.uint8)
-        _label(label, f"class {class_id}", (6, 18), 0.5)
-        _label(label, f"p {record['stretch_mult']:g}  k {record['bend_mult']:g}", (6, 38))
-        rows.append(np.concatenate([label, row], axis=1))
-    width = max(r.shape[1] for r in rows)
-    rows = [np.pad(r, ((0, 2), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
-    return np.concatenate(rows, axis=0)
+        strips = [frame_strip(data.read(i)[1], frames_per_clip) for i in chosen]
+        rows.append((class_lines(class_id), np.concatenate(strips, axis=1)))
+    return labelled_rows(rows)
 
 
 def grid_video(data: ClothClipDataset, *, columns: int = 9) -> np.ndarray:
@@ -80,8 +140,16 @@ def grid_video(data: ClothClipDataset, *, columns: int = 9) -> np.ndarray:
         same.sort(key=lambda i: data.records[i]["clip_index"])
         frames = np.concatenate([data.read(i)[1] for i in same]).copy()
         for frame in frames:
-            _label(frame, str(class_id), (3, 12), 0.35)
+            draw_label(frame, str(class_id), (3, 12), 0.35)
         cells.append(frames)
+    return tile_grid(cells, columns)
+
+
+def tile_grid(cells: Sequence[np.ndarray], columns: int) -> np.ndarray:
+    """Frames (N, H', W', 3): same-sized videos (N_i, H, W, 3) in a grid, row by row.
+
+    A shorter video holds its last frame; the last row is filled up with black cells.
+    """
     length = max(len(c) for c in cells)
     cells = [np.concatenate([c, np.repeat(c[-1:], length - len(c), 0)]) for c in cells]
     blank = np.zeros_like(cells[0])
@@ -91,29 +159,30 @@ def grid_video(data: ClothClipDataset, *, columns: int = 9) -> np.ndarray:
     return np.concatenate(rows, axis=1)
 
 
-def _write_png(path: Path, image: np.ndarray) -> None:
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Write an RGB uint8 image as a PNG, atomically (no half file on failure)."""
     ok, data = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
     if not ok:
         raise RuntimeError(f"PNG encoding failed for {path}")
-    from simulator.sequence import atomic_write_bytes
-
     atomic_write_bytes(path, data.tobytes())
 
 
-def _write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
+def write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
+    """Write RGB uint8 frames (N, H, W, 3) as an mp4 (mp4v), atomically.
+
+    OpenCV writes into a private temporary folder; the finished file is then put in place
+    by :func:`simulator.sequence.atomic_write_bytes`, with the usual file mode.
+    """
     height, width = frames.shape[1:3]
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp.mp4")
-    os.close(fd)
-    try:
-        writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    with tempfile.TemporaryDirectory(prefix="clothsense-mp4-") as folder:
+        tmp = Path(folder) / "video.mp4"
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
         if not writer.isOpened():
             raise RuntimeError("OpenCV cannot write mp4 (mp4v) here")
         for frame in frames:
             writer.write(np.ascontiguousarray(frame[..., ::-1]))
         writer.release()
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+        atomic_write_bytes(path, tmp.read_bytes())
 
 
 def main(argv: list[str] | None = None) -> list[Path]:
@@ -133,9 +202,9 @@ def main(argv: list[str] | None = None) -> list[Path]:
         sheet = contact_sheet(
             data, clips_per_class=args.clips_per_class, frames_per_clip=args.frames_per_clip
         )
-        _write_png(args.out / f"{name}_sheet.png", sheet)
+        write_png(args.out / f"{name}_sheet.png", sheet)
         video = grid_video(data)
-        _write_mp4(args.out / f"{name}_grid.mp4", video, float(data.records[0]["fps"]))
+        write_mp4(args.out / f"{name}_grid.mp4", video, float(data.records[0]["fps"]))
         written += [args.out / f"{name}_sheet.png", args.out / f"{name}_grid.mp4"]
         print(
             f"{name}: {written[-2]} ({sheet.shape[1]}x{sheet.shape[0]}), {written[-1]} "

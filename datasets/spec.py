@@ -19,6 +19,8 @@ import json
 import typing
 from typing import Any
 
+import numpy as np
+
 from render.camera import CameraSpec
 from render.effects import VisualEffects
 from render.lights import LightSpec
@@ -87,6 +89,15 @@ PRESETS = {
     ),
 }
 """``full`` = the thesis's 2,592 clips per setting; ``small`` = 432 clips for quick runs."""
+
+
+def _is_integral(value: Any) -> bool:
+    """An int, or a float with an integer value (not a bool, not text)."""
+    if isinstance(value, bool | np.bool_):
+        return False
+    if isinstance(value, int | np.integer):
+        return True
+    return isinstance(value, float | np.floating) and float(value).is_integer()
 
 
 def _jsonable(value: Any) -> Any:
@@ -189,7 +200,12 @@ class DatasetSpec:
                 f"texture_mode must be one of {[m.value for m in TextureMode]}, "
                 f"got {self.texture_mode!r}"
             ) from None
-        classes = tuple(int(c) for c in self.classes)
+        classes = tuple(self.classes)
+        if not all(_is_integral(c) for c in classes):  # 1.7 is refused, never truncated
+            raise ValueError(
+                f"classes must be integer class ids in [0, {CLASS_COUNT - 1}], got {list(classes)}"
+            )
+        classes = tuple(int(c) for c in classes)
         if not classes or len(set(classes)) != len(classes):
             raise ValueError(f"classes must be a non-empty list without repeats, got {classes}")
         bad = [c for c in classes if not 0 <= c < CLASS_COUNT]

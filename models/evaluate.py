@@ -1,51 +1,107 @@
 """Evaluate a trained classifier: simulated test split (Table 7.2) and real videos (Table 7.3).
 
 ``python -m models.evaluate ckpt_path=RUN/checkpoints/best.ckpt data_dir=DATASET
-real_dir=FOLDER`` (configs/evaluate.yaml) writes, into ``out_dir`` (default ``RUN/eval``):
+real_dir=FOLDER [real.columns=[stiffness,density,bending_rigidity]] [real.group=fabric]``
+(configs/evaluate.yaml). Each evaluation gets a folder of its own::
+
+    OUT/<dataset>-<split>+<real folder>-<hash>/     OUT = out_dir, default RUN/eval
+
+(``<dataset>-<split>`` or ``<real folder>`` alone when only one is evaluated). ``<hash>`` is
+the first 10 hex digits of the sha256 of every input that decides the numbers: the
+checkpoint's bytes, the dataset's manifest, the real folder's ``labels.csv`` and file list
+(names, sizes, modification times), split and protocol, clip cutting, columns, group rule
+and bootstrap. The same inputs always map to the same folder and different inputs never share
+one, so neither the training run's ``RUN/eval/sim_test.json`` (read by :mod:`models.table72`)
+nor an earlier report is overwritten. A folder whose evaluation finished (it holds
+``evaluation.json``, the hashed inputs) is refused unless ``overwrite=true``; an evaluation
+that fails removes the folder it created. The folder holds:
 
 * ``sim_<split>.json`` / ``.md``: top-1 and top-5 accuracy over the 54 classes, stretch- and
-  bend-factor accuracy, 6 x 9 grid MAE, the same per wind level, and
+  bend-factor accuracy, 6 x 9 grid MAE, the same per wind level (W1, W2, W3), and
   ``confusion_<split>.png``;
 * ``real.json`` / ``.md`` / ``real_videos.csv``: per video the clip-averaged class
-  probabilities turned into scores (:mod:`models.scores`), and Pearson / Spearman r with
-  bootstrap 95 % intervals against measured stiffness and density, for all videos and per
-  wind label.
+  probabilities turned into scores (:mod:`models.scores`); each score's Pearson r and
+  Spearman rho, with group-bootstrap 95 % intervals and p-values (:mod:`models.correlation`),
+  against each chosen measured column, for all videos and per wind label; the counts of
+  videos listed, used and skipped (too short for one clip); and
+  ``scatter_<score>_vs_<column>.png`` (predicted vs measured, coloured by wind).
+
+The checkpoint's class count is checked against the 54 classes before anything is predicted.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
+import json
 import logging
+import re
+import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 import hydra
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
+from torch import nn
 from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
 from datasets.clip_dataset import ClothClipDataset
-from datasets.real_video import RealVideoDataset
+from datasets.manifest import SPLIT_PROTOCOLS, Manifest
+from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset
+from datasets.spec import SPLITS
+from simulator.errors import InputError, check_choice, check_float, check_int, report_user_errors
+from simulator.material import CLASS_COUNT
 from simulator.sequence import atomic_write_bytes
 
 from .correlation import correlate
 from .material_classifier import MaterialClassifierModule, load_classifier
 from .metrics import BREAKDOWNS, breakdown_metrics, classification_metrics, confusion_matrix
-from .report import confusion_png, markdown_table, write_json, write_text
-from .scores import material_scores
+from .report import confusion_png, markdown_table, scatter_png, wind_label, write_json, write_text
+from .scores import CORRELATED_SCORES, SCORE_NAMES, material_scores
 
-__all__ = ["evaluate_real", "evaluate_simulated", "pick_device", "predict"]
+__all__ = [
+    "check_class_count", "checkpoint_class_count", "evaluate_real", "evaluate_simulated",
+    "evaluation_folder", "pick_device", "predict", "run",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
 THESIS_TABLE_73 = {"stiffness": (0.47, 0.43, 0.50), "density": (0.55, 0.62, 0.64)}
 """Thesis Table 7.3, CNN+LSTM on all 30 fabrics, W1/W2/W3 videos."""
+FINISHED = "evaluation.json"
+"""Written last into an evaluation folder: its inputs; its presence marks the folder done."""
+HASH_DIGITS = 10
 
 
 def pick_device() -> torch.device:
     """CUDA when present, else CPU."""
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def checkpoint_class_count(module: MaterialClassifierModule) -> int | None:
+    """Classes the module predicts, read from its net (``None`` when the net does not say)."""
+    head = getattr(module.net, "classifier", None)
+    if isinstance(head, nn.Linear):
+        return int(head.out_features)
+    config = module.hparams.get("net_config") or {}
+    count = config.get("num_classes") if hasattr(config, "get") else None
+    return None if count is None else int(count)
+
+
+def check_class_count(
+    module: MaterialClassifierModule, *, checkpoint: str | Path | None, dataset: str | Path
+) -> None:
+    """Refuse a checkpoint whose class count is not the datasets' 54 (one line, both counts)."""
+    count = checkpoint_class_count(module)
+    if count is not None and count != CLASS_COUNT:
+        raise InputError(
+            f"checkpoint {checkpoint or '(in memory)'} predicts {count} classes but {dataset} "
+            f"has {CLASS_COUNT} (the 6 x 9 stretch x bend classes); use a checkpoint trained "
+            "on them"
+        )
 
 
 @torch.no_grad()
@@ -56,14 +112,23 @@ def predict(
     batch_size: int = 16,
     device: torch.device | None = None,
     desc: str = "predict",
+    class_count: int | None = None,
 ) -> tuple[torch.Tensor, list[dict]]:
-    """Logits (N, 54) of every clip of ``dataset`` and each sample's metadata (no pixels)."""
+    """Logits (N, classes) of every clip of ``dataset`` and each sample's metadata (no pixels).
+
+    With ``class_count``, logits of another width are refused at the first batch.
+    """
     device = device or pick_device()
     module = module.to(device).eval()
     logits, meta = [], []
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=0)
     for batch in tqdm(loader, desc=desc, unit="batch", leave=False):
-        logits.append(module(batch["video"].to(device)).float().cpu())
+        out = module(batch["video"].to(device)).float().cpu()
+        if class_count is not None and out.shape[-1] != class_count:
+            raise InputError(
+                f"the checkpoint predicts {out.shape[-1]} classes but the dataset has {class_count}"
+            )
+        logits.append(out)
         size = batch["video"].shape[0]
         for i in range(size):
             meta.append({k: _item(v[i]) for k, v in batch.items() if k != "video"})
@@ -86,6 +151,12 @@ def _metrics_row(label: str, m: dict) -> list:
     ]  # fmt: skip
 
 
+def _breakdown_label(field: str, value: str) -> str:
+    if field == "wind_level":
+        return f"wind {wind_label(value)}"
+    return f"{field.replace('_', ' ')} {value}"
+
+
 def evaluate_simulated(
     module: MaterialClassifierModule,
     data_dir: str | Path,
@@ -95,15 +166,20 @@ def evaluate_simulated(
     split_protocol: str = "simulation",
     batch_size: int = 16,
     extra: dict | None = None,
+    checkpoint: str | Path | None = None,
 ) -> dict:
     """Metrics of ``module`` on one split of a generated dataset; writes JSON, MD and PNG.
 
     ``split_protocol`` must be the one the model was trained under (see
     :data:`datasets.manifest.SPLIT_PROTOCOLS`). ``extra`` entries (e.g. training time and
-    device) are stored in the JSON as they are.
+    device) are stored in the JSON as they are. The JSON keeps wind levels as stored (0, 1,
+    2: the results ledger reads them); the Markdown names them W1, W2, W3.
     """
+    check_class_count(module, checkpoint=checkpoint, dataset=data_dir)
     dataset = ClothClipDataset(data_dir, split, verify=True, split_protocol=split_protocol)
-    logits, meta = predict(module, dataset, batch_size=batch_size, desc=f"{split} clips")
+    logits, meta = predict(
+        module, dataset, batch_size=batch_size, desc=f"{split} clips", class_count=CLASS_COUNT
+    )
     labels = torch.tensor([m["label"] for m in meta])
     result = {
         "method": module.hparams.get("method", ""),
@@ -124,7 +200,7 @@ def evaluate_simulated(
     rows = [_metrics_row(result["method"], result)]
     for key, field in BREAKDOWNS.items():
         for value, sub in result.get(key, {}).items():
-            rows.append(_metrics_row(f"{field.replace('_', ' ')} {value}", sub))
+            rows.append(_metrics_row(_breakdown_label(field, value), sub))
     header = ["method", "clips", "top-1 %", "top-5 %", "stretch %", "bend %", "grid MAE"]
     text = (
         f"# {Path(data_dir).name}: {split} split ({split_protocol} protocol)\n\n"
@@ -136,15 +212,29 @@ def evaluate_simulated(
     return result
 
 
-def _fmt_r(corr: dict) -> str:
-    if corr["pearson"] is None:
+def _fmt_corr(corr: dict, kind: str) -> str:
+    """``r [low, high]`` of ``kind`` (pearson or spearman), ``n/a`` when undefined."""
+    value, ci = corr[kind], corr[f"{kind}_ci"]
+    if value is None:
         return "n/a"
-    ci = corr["pearson_ci"]
-    return f"{corr['pearson']:.2f}" + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "")
+    return f"{value:.2f}" + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "")
 
 
-def _fmt_rho(corr: dict) -> str:
-    return "n/a" if corr["spearman"] is None else f"{corr['spearman']:.2f}"
+def _fmt_p(p: float | None) -> str:
+    if p is None:
+        return "n/a"
+    return "<0.001" if p < 0.001 else f"{p:.3f}"
+
+
+def _file_slugs(names: Sequence[str]) -> dict[str, str]:
+    """File-name-safe, distinct versions of ``names``."""
+    out: dict[str, str] = {}
+    for name in names:
+        slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "column"
+        while slug in out.values():
+            slug += "_"
+        out[name] = slug
+    return out
 
 
 def evaluate_real(
@@ -152,6 +242,8 @@ def evaluate_real(
     real_dir: str | Path,
     out_dir: str | Path,
     *,
+    columns: Sequence[str] = DEFAULT_COLUMNS,
+    group: str | None = None,
     clip_len: int = 10,
     clip_stride: int = 10,
     target_fps: float = 15.0,
@@ -159,130 +251,319 @@ def evaluate_real(
     batch_size: int = 16,
     rounds: int = 2000,
     seed: int = 0,
+    checkpoint: str | Path | None = None,
 ) -> dict:
-    """Correlation of per-video material scores with measured stiffness and density."""
+    """Correlate each per-video score with each measured column; writes JSON, MD, CSV, PNGs.
+
+    ``columns`` are the measured ``labels.csv`` columns; ``group`` the column whose equal
+    values form one fabric (``None``: see :mod:`datasets.real_video`). ``correlations`` in the
+    result holds the thesis's Table 7.3 figures (``material_score`` against each column, per
+    input) and ``score_correlations[input][score][column]`` every pair.
+    """
+    check_class_count(module, checkpoint=checkpoint, dataset=real_dir)
+    clashes = [c for c in columns if c in (*SCORE_NAMES, "clips")]
+    if clashes:
+        raise InputError(f"columns {clashes} clash with report fields; rename them in labels.csv")
     dataset = RealVideoDataset(
-        real_dir, clip_len=clip_len, clip_stride=clip_stride, target_fps=target_fps, size=size
+        real_dir, columns=columns, group=group, clip_len=clip_len, clip_stride=clip_stride,
+        target_fps=target_fps, size=size,
+    )  # fmt: skip
+    columns = dataset.columns
+    logits, meta = predict(
+        module, dataset, batch_size=batch_size, desc="real clips", class_count=CLASS_COUNT
     )
-    logits, meta = predict(module, dataset, batch_size=batch_size, desc="real clips")
     probs = logits.softmax(dim=1)
-    videos: dict[str, dict] = {}
+    rows_of: dict[str, list[int]] = {}
     for i, m in enumerate(meta):
-        entry = videos.setdefault(
-            m["video_name"],
-            {"stiffness": m["stiffness"], "density": m["density"], "wind": m["wind"], "rows": []},
-        )
-        entry["rows"].append(i)
-    names = list(videos)
-    mean_probs = torch.stack([probs[videos[n]["rows"]].mean(0) for n in names])
+        rows_of.setdefault(m["video_name"], []).append(i)
+    used = [v for v in dataset.videos if v.name in rows_of]  # labels.csv order
+    mean_probs = torch.stack([probs[rows_of[v.name]].mean(0) for v in used])
     scores = {k: v.tolist() for k, v in material_scores(mean_probs).items()}
-    per_video = []
-    for i, name in enumerate(names):
-        v = videos[name]
-        per_video.append({
-            "video": name, "wind": v["wind"], "stiffness": v["stiffness"], "density": v["density"],
-            "clips": len(v["rows"]), **{k: scores[k][i] for k in scores},
-        })  # fmt: skip
-    groups = {"all": list(range(len(names)))}
-    winds = sorted({v["wind"] for v in per_video if v["wind"]})
-    for wind in winds:
-        groups[wind] = [i for i, v in enumerate(per_video) if v["wind"] == wind]
-    pairs = {
-        "stiffness": ("material_score", "stiffness"),
-        "density": ("material_score", "density"),
-        "stiffness_vs_bend_score": ("bend_score", "stiffness"),
-    }
-    correlations = {}
-    for group, idx in groups.items():
-        correlations[group] = {
-            name: correlate(
-                [per_video[i][score] for i in idx], [per_video[i][target] for i in idx],
-                rounds=rounds, seed=seed,
-            ).to_json()
-            for name, (score, target) in pairs.items()
+    per_video = [
+        {"video": v.name, "group": v.group, "wind": v.wind, "clips": len(rows_of[v.name]),
+         **v.values, **{k: scores[k][i] for k in scores}}
+        for i, v in enumerate(used)
+    ]  # fmt: skip
+    inputs = {"all": list(range(len(per_video)))}
+    for wind in sorted({v["wind"] for v in per_video if v["wind"]}):
+        inputs[wind] = [i for i, v in enumerate(per_video) if v["wind"] == wind]
+    score_correlations = {}
+    for name, idx in inputs.items():
+        groups = [per_video[i]["group"] for i in idx]
+        score_correlations[name] = {
+            score: {
+                column: correlate(
+                    [per_video[i][score] for i in idx], [per_video[i][column] for i in idx],
+                    groups=groups, rounds=rounds, seed=seed,
+                ).to_json()
+                for column in columns
+            }
+            for score in CORRELATED_SCORES
         }  # fmt: skip
+    correlations = {
+        name: {column: by_score["material_score"][column] for column in columns}
+        for name, by_score in score_correlations.items()
+    }
     method = module.hparams.get("method", "")
+    out = Path(out_dir)
+    slugs = _file_slugs(columns)
+    scatter = {}
+    winds = [v["wind"] for v in per_video]
+    for score in CORRELATED_SCORES:
+        for column in columns:
+            c = score_correlations["all"][score][column]
+            path = out / f"scatter_{score}_vs_{slugs[column]}.png"
+            scatter_png(
+                path, [v[column] for v in per_video], [v[score] for v in per_video], winds,
+                xlabel=f"measured {column}", ylabel=f"predicted {score}",
+                title=f"{method or 'model'} on {Path(real_dir).name}: r = {_fmt_corr(c, 'pearson')}"
+                f", {c['count']} videos, {c['group_count']} groups",
+            )  # fmt: skip
+            scatter.setdefault(score, {})[column] = path.name
+    skipped = [
+        {"video": s.name, "frame_count": s.frame_count, "frames_needed": s.frames_needed}
+        for s in dataset.skipped
+    ]
     result = {
         "method": method,
+        "checkpoint": None if checkpoint is None else str(checkpoint),
         "real_dir": str(real_dir),
-        "videos": len(names),
+        "columns": list(columns),
+        "scores": list(CORRELATED_SCORES),
+        "videos": dataset.used_count,
+        "videos_listed": len(dataset.videos),
+        "videos_used": dataset.used_count,
+        "videos_skipped": dataset.skipped_count,
+        "skipped": skipped,
         "clips": len(meta),
+        "groups": score_correlations["all"]["material_score"][columns[0]]["group_count"],
+        "group_column": dataset.group_column,
+        "group_rule": dataset.group_rule,
         "bootstrap_rounds": rounds,
+        "bootstrap_seed": seed,
+        "bootstrap_unit": "group",
+        "p_value": "two-sided t-test of r with groups - 2 degrees of freedom",
         "score_definition": "material_score = sum_c p_c * c over the 54 classes (class id = "
-        "stretch_index * 9 + bend_index, a stiffness ordering), p averaged over a video's clips",
+        "stretch_index * 9 + bend_index, a stiffness ordering); stretch_score, bend_score = "
+        "expected stretch (0..5) and bend (0..8) index; p averaged over a video's clips",
         "correlations": correlations,
+        "score_correlations": score_correlations,
+        "scatter": scatter,
         "per_video": per_video,
     }
-    out = Path(out_dir)
     write_json(out / "real.json", result)
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=list(per_video[0]), lineterminator="\n")
     writer.writeheader()
     writer.writerows(per_video)
     atomic_write_bytes(out / "real_videos.csv", buffer.getvalue().encode())
-    rows = []
-    for group, idx in groups.items():
-        c = correlations[group]
-        label = f"{len(idx)} videos" if group == "all" else f"{len(idx)} {group}-videos"
-        rows.append([
-            method, label, _fmt_r(c["stiffness"]), _fmt_r(c["density"]),
-            _fmt_rho(c["stiffness"]), _fmt_rho(c["density"]), _fmt_r(c["stiffness_vs_bend_score"]),
-        ])  # fmt: skip
-    header = [
-        "method", "input", "stiffness r [95% CI]", "density r [95% CI]", "stiffness rho",
-        "density rho", "stiffness r (bend score)",
-    ]  # fmt: skip
-    thesis = [
-        ["CNN+LSTM (thesis)", f"30 W{k + 1}-videos", f"{THESIS_TABLE_73['stiffness'][k]:.2f}",
-         f"{THESIS_TABLE_73['density'][k]:.2f}", "", "", ""]
-        for k in range(3)
-    ]  # fmt: skip
-    text = (
-        f"# Real videos: {Path(real_dir).name} (Table 7.3 style)\n\n"
-        "Scores: per video, clip probabilities averaged; `material_score` = expected class id "
-        "(stiffness ordering). r = Pearson with percentile-bootstrap 95 % interval over videos "
-        f"({rounds} rounds); rho = Spearman.\n\n" + markdown_table(header, rows + thesis)
-    )
-    write_text(out / "real.md", text)
+    write_text(out / "real.md", _real_markdown(result, dataset, inputs))
+    log.info(
+        "%s: %d of %d videos used, %d skipped; report in %s",
+        real_dir, result["videos_used"], result["videos_listed"], result["videos_skipped"], out,
+    )  # fmt: skip
     return result
 
 
+def _real_markdown(result: dict, dataset: RealVideoDataset, inputs: dict[str, list]) -> str:
+    """``real.md``: counts, skipped videos, the correlation table, thesis reference, plots."""
+    columns, lines = result["columns"], []
+    lines.append(f"# Real videos: {Path(result['real_dir']).name} (Table 7.3 style)\n")
+    if result["checkpoint"]:
+        lines.append(f"Checkpoint `{result['checkpoint']}` (method `{result['method']}`).\n")
+    lines.append(
+        f"Videos: {result['videos_listed']} listed in labels.csv, {result['videos_used']} used "
+        f"({result['clips']} clips), {result['videos_skipped']} skipped as too short for one "
+        f"clip of {dataset.clip_len} frames at {dataset.target_fps:g} fps.\n"
+    )
+    if result["skipped"]:
+        rows = [[s["video"], s["frame_count"], s["frames_needed"]] for s in result["skipped"]]
+        lines.append(markdown_table(["skipped video", "frames", "frames needed"], rows))
+    lines.append(
+        f"Groups: {result['groups']} independent groups, formed by {result['group_rule']}. "
+        "Intervals are percentile-bootstrap 95 % intervals that resample groups "
+        f"({result['bootstrap_rounds']} rounds); p-values are two-sided t-tests with groups - 2 "
+        "degrees of freedom.\n"
+    )
+    lines.append(
+        "Scores, per video from its clips' averaged class probabilities: `material_score` = "
+        "expected class id 0..53 (stretch-major stiffness ordering: the thesis's predicted "
+        "class number), `stretch_score` = expected stretch index 0..5, `bend_score` = expected "
+        "bend index 0..8.\n"
+    )
+    header = [
+        "input", "score", "measured", "videos", "groups", "Pearson r [95% CI]", "p",
+        "Spearman rho [95% CI]", "p",
+    ]  # fmt: skip
+    rows = []
+    for name, by_score in result["score_correlations"].items():
+        for score, by_column in by_score.items():
+            for column in columns:
+                c = by_column[column]
+                rows.append([
+                    name, score, column, c["count"], c["group_count"], _fmt_corr(c, "pearson"),
+                    _fmt_p(c["pearson_p"]), _fmt_corr(c, "spearman"), _fmt_p(c["spearman_p"]),
+                ])  # fmt: skip
+    lines.append(markdown_table(header, rows))
+    thesis = [
+        [f"W{k + 1}", f"{THESIS_TABLE_73['stiffness'][k]:.2f}",
+         f"{THESIS_TABLE_73['density'][k]:.2f}"]
+        for k in range(3)
+    ]  # fmt: skip
+    lines.append(
+        "Thesis Table 7.3 for reference (CNN+LSTM, 30 fabrics, one video per wind level, "
+        "Pearson r of the predicted class number):\n"
+    )
+    lines.append(markdown_table(["input", "stiffness r", "density r"], thesis))
+    lines.append("## Predicted vs measured (colour: wind)\n")
+    for score, by_column in result["scatter"].items():
+        for column, file in by_column.items():
+            lines.append(f"![{score} vs {column}]({file})\n")
+    return "\n".join(lines)
+
+
 def _default_out_dir(ckpt_path: Path) -> Path:
-    run = ckpt_path.parent.parent if ckpt_path.parent.name == "checkpoints" else ckpt_path.parent
-    return run / "eval"
+    run_dir = (
+        ckpt_path.parent.parent if ckpt_path.parent.name == "checkpoints" else ckpt_path.parent
+    )
+    return run_dir / "eval"
+
+
+def _sha256(path: Path) -> str | None:
+    if not path.is_file():
+        return None
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        while block := handle.read(1 << 20):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _listing_sha256(root: Path) -> str:
+    """sha256 of every file's relative path, size and modification time under ``root``."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        if path.is_file():
+            stat = path.stat()
+            digest.update(f"{path.relative_to(root)}:{stat.st_size}:{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest()
+
+
+def _settings(cfg: DictConfig) -> dict:
+    """The configured values, type- and range-checked (errors name the field)."""
+    real = cfg.real
+    columns = OmegaConf.to_container(real.columns) if "columns" in real else list(DEFAULT_COLUMNS)
+    if isinstance(columns, str):
+        columns = [columns]
+    if not isinstance(columns, list) or not columns or not all(isinstance(c, str) for c in columns):
+        raise InputError(f"real.columns must be a list of labels.csv column names, got {columns}")
+    group = real.get("group")
+    if group is not None and not isinstance(group, str):
+        raise InputError(f"real.group must be a labels.csv column name or null, got {group!r}")
+    return {
+        "split": check_choice(cfg.split, "split", SPLITS),
+        "split_protocol": check_choice(cfg.split_protocol, "split_protocol", SPLIT_PROTOCOLS),
+        "batch_size": check_int(cfg.batch_size, "batch_size", 1),
+        "clip_len": check_int(real.clip_len, "real.clip_len", 1),
+        "clip_stride": check_int(real.clip_stride, "real.clip_stride", 1),
+        "target_fps": check_float(real.target_fps, "real.target_fps", 0.0, low_open=True),
+        "size": check_int(real.size, "real.size", 1),
+        "columns": columns,
+        "group": group,
+        "rounds": check_int(cfg.bootstrap.rounds, "bootstrap.rounds", 0),
+        "seed": check_int(cfg.bootstrap.seed, "bootstrap.seed", 0),
+        "overwrite": check_choice(cfg.get("overwrite", False), "overwrite", (False, True)),
+    }
+
+
+def evaluation_folder(
+    parent: Path, ckpt: Path, data_dir: Path | None, real_dir: Path | None, settings: dict
+) -> tuple[Path, dict]:
+    """The evaluation's own folder under ``parent`` and the inputs hashed into its name."""
+    inputs: dict = {"checkpoint": str(ckpt.resolve()), "checkpoint_sha256": _sha256(ckpt)}
+    parts = []
+    if data_dir is not None:
+        inputs["sim"] = {
+            "data_dir": str(data_dir.resolve()),
+            "manifest_sha256": _sha256(Manifest.path(data_dir)),
+            **{k: settings[k] for k in ("split", "split_protocol")},
+        }
+        parts.append(f"{data_dir.resolve().name}-{settings['split']}")
+    if real_dir is not None:
+        keys = ("clip_len", "clip_stride", "target_fps", "size", "columns", "group", "rounds",
+                "seed")  # fmt: skip
+        inputs["real"] = {
+            "real_dir": str(real_dir.resolve()),
+            "labels_sha256": _sha256(real_dir / "labels.csv"),
+            "files_sha256": _listing_sha256(real_dir),
+            **{k: settings[k] for k in keys},
+        }
+        parts.append(real_dir.resolve().name)
+    text = json.dumps(inputs, sort_keys=True)
+    digest = hashlib.sha256(text.encode()).hexdigest()[:HASH_DIGITS]
+    name = re.sub(r"[^A-Za-z0-9._+-]+", "_", "+".join(parts))
+    return parent / f"{name}-{digest}", inputs
 
 
 def run(cfg: DictConfig) -> dict:
-    """Evaluate the configured checkpoint; returns ``{"sim": ..., "real": ...}``."""
+    """Evaluate the configured checkpoint into its own folder.
+
+    Returns ``{"sim": ..., "real": ..., "out_dir": folder}`` (the parts that were asked for).
+    """
     if cfg.data_dir is None and cfg.real_dir is None:
-        raise ValueError("evaluate needs data_dir (a generated dataset) and/or real_dir")
+        raise InputError(
+            "evaluate needs data_dir (a generated dataset) and/or real_dir (a folder of real "
+            "videos with labels.csv)"
+        )
     for key in ("data_dir", "real_dir"):
         if cfg[key] is not None and not Path(cfg[key]).is_dir():
             raise FileNotFoundError(f"{key} {cfg[key]} does not exist")
+    settings = _settings(cfg)
     ckpt = Path(cfg.ckpt_path)
     module = load_classifier(ckpt)
-    out_dir = Path(cfg.out_dir) if cfg.out_dir else _default_out_dir(ckpt)
-    results = {}
-    if cfg.data_dir is not None:
-        results["sim"] = evaluate_simulated(
-            module, cfg.data_dir, out_dir, split=str(cfg.split),
-            split_protocol=str(cfg.split_protocol), batch_size=int(cfg.batch_size),
-        )  # fmt: skip
-    if cfg.real_dir is not None:
-        results["real"] = evaluate_real(
-            module, cfg.real_dir, out_dir, batch_size=int(cfg.batch_size),
-            clip_len=int(cfg.real.clip_len), clip_stride=int(cfg.real.clip_stride),
-            target_fps=float(cfg.real.target_fps), size=int(cfg.real.size),
-            rounds=int(cfg.bootstrap.rounds), seed=int(cfg.bootstrap.seed),
-        )  # fmt: skip
-    log.info("evaluation written to %s", out_dir)
+    data_dir = None if cfg.data_dir is None else Path(cfg.data_dir)
+    real_dir = None if cfg.real_dir is None else Path(cfg.real_dir)
+    check_class_count(module, checkpoint=ckpt, dataset=data_dir or real_dir)
+    parent = Path(cfg.out_dir) if cfg.out_dir else _default_out_dir(ckpt)
+    folder, inputs = evaluation_folder(parent, ckpt, data_dir, real_dir, settings)
+    if (folder / FINISHED).is_file() and not settings["overwrite"]:
+        raise InputError(
+            f"{folder} already holds the evaluation of these exact inputs; read it there, or "
+            "pass overwrite=true to redo it"
+        )
+    created = not folder.exists()
+    results: dict = {}
+    try:
+        if data_dir is not None:
+            results["sim"] = evaluate_simulated(
+                module, data_dir, folder, split=settings["split"],
+                split_protocol=settings["split_protocol"], batch_size=settings["batch_size"],
+                checkpoint=ckpt,
+            )  # fmt: skip
+        if real_dir is not None:
+            results["real"] = evaluate_real(
+                module, real_dir, folder, columns=settings["columns"], group=settings["group"],
+                clip_len=settings["clip_len"], clip_stride=settings["clip_stride"],
+                target_fps=settings["target_fps"], size=settings["size"],
+                batch_size=settings["batch_size"], rounds=settings["rounds"],
+                seed=settings["seed"], checkpoint=ckpt,
+            )  # fmt: skip
+        write_json(folder / FINISHED, inputs)
+    except BaseException:
+        if created:
+            shutil.rmtree(folder, ignore_errors=True)  # nothing half-written left behind
+        raise
+    results["out_dir"] = str(folder)
+    log.info("evaluation written to %s", folder)
     return results
 
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="evaluate")
+@report_user_errors
 def main(cfg: DictConfig) -> None:
-    """Hydra wrapper around :func:`run`."""
-    run(cfg)
+    """Hydra wrapper around :func:`run`; prints where the reports are."""
+    results = run(cfg)
+    print(f"evaluation written to {results['out_dir']}")
 
 
 if __name__ == "__main__":

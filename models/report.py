@@ -1,4 +1,8 @@
-"""Atomic writers for evaluation artefacts: JSON (no NaN allowed), Markdown and PNG figures."""
+"""Atomic writers for evaluation artefacts: JSON (no NaN allowed), Markdown and PNG figures.
+
+Wind levels are written W1, W2, W3 (weakest first) in every report, as in the README and in
+Bouman et al.'s real sets; the datasets store them as indices 0, 1, 2 (:func:`wind_label`).
+"""
 
 from __future__ import annotations
 
@@ -11,7 +15,9 @@ import numpy as np
 from simulator.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
 from simulator.sequence import atomic_write_bytes
 
-__all__ = ["confusion_png", "markdown_table", "write_json", "write_text"]
+__all__ = [
+    "confusion_png", "markdown_table", "scatter_png", "wind_label", "write_json", "write_text",
+]  # fmt: skip
 
 
 def write_json(path: str | Path, payload) -> None:
@@ -30,6 +36,58 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
     return "\n".join(lines) + "\n"
+
+
+def wind_label(level: int | str) -> str:
+    """Report name of a simulated wind level index: 0 -> "W1"; -1 (no wind) -> "none"."""
+    level = int(level)
+    return "none" if level < 0 else f"W{level + 1}"
+
+
+def _png_bytes(fig) -> bytes:
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def scatter_png(
+    path: str | Path,
+    measured,
+    predicted,
+    winds,
+    *,
+    xlabel: str,
+    ylabel: str,
+    title: str,
+) -> None:
+    """Write a scatter plot of ``predicted`` against ``measured``, one colour per wind label.
+
+    Videos without a wind label are drawn in grey as "no wind label".
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = np.asarray(measured, dtype=np.float64)
+    y = np.asarray(predicted, dtype=np.float64)
+    labels = [str(w) for w in winds]
+    fig, ax = plt.subplots(figsize=(5.0, 4.0), dpi=100)
+    colours = plt.get_cmap("tab10").colors
+    for k, wind in enumerate(sorted(set(labels))):
+        pick = np.array([label == wind for label in labels])
+        colour = colours[k % len(colours)] if wind else "0.5"
+        ax.scatter(x[pick], y[pick], s=22, color=colour, label=wind or "no wind label")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    ax.legend(title="wind", fontsize=8, title_fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    atomic_write_bytes(path, _png_bytes(fig))
 
 
 def confusion_png(path: str | Path, matrix: np.ndarray, title: str) -> None:
@@ -61,7 +119,4 @@ def confusion_png(path: str | Path, matrix: np.ndarray, title: str) -> None:
     ax.set_title(title, fontsize=10)
     fig.colorbar(image, ax=ax, fraction=0.046, pad=0.04, label="fraction of the true class")
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    atomic_write_bytes(path, buffer.getvalue())
+    atomic_write_bytes(path, _png_bytes(fig))

@@ -25,9 +25,13 @@ from simulator.material import CLASS_COUNT
 
 from .metrics import grid_position
 
-__all__ = ["SCORE_NAMES", "material_scores"]
+__all__ = ["CORRELATED_SCORES", "SCORE_NAMES", "material_scores"]
 
 SCORE_NAMES = ("material_score", "stretch_score", "bend_score", "predicted_class")
+CORRELATED_SCORES = ("material_score", "stretch_score", "bend_score")
+"""Scores correlated with each measured column of a real set. ``predicted_class`` (the argmax)
+is a coarse copy of ``material_score`` and is left out; there is no density score (one
+density in the subspace), so density is correlated with each of these, as in the thesis."""
 
 
 def material_scores(probs: torch.Tensor) -> dict[str, torch.Tensor]:

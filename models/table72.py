@@ -4,9 +4,10 @@
 of the wind and arm datasets (the runs of ``configs/experiment/*_L1_random_*.yaml``; ``-seq``:
 the thesis's sub-sequence split, ``*_seq.yaml``), copies each into the results ledger
 ``reports/runs/<run name>.json`` (committed: run folders are not, so a fresh checkout rebuilds
-the same table from the ledger), writes ``reports/table72.md`` and replaces the block between
-``<!-- table72:start -->`` and ``<!-- table72:end -->`` in README.md. Missing runs show as
-"-"; the thesis's numbers for the same mesh level (Unif-k / Randk) stand beside ours.
+the same table from the ledger) and writes ``docs/results/table72.md`` (``--out``); with
+``--readme FILE`` it also replaces the block between ``<!-- table72:start -->`` and
+``<!-- table72:end -->`` in that file (never by default). Missing runs show as "-"; the
+thesis's numbers for the same mesh level (Unif-k / Randk) stand beside ours.
 ``--level 1,3`` gives a row per mesh level, ``--arm-preset small,full`` a row per preset,
 ``--texture random,grid`` a row per texture; a setting without any run is listed under the
 table instead of as an empty row.
@@ -198,7 +199,7 @@ def update_readme(readme: Path, table: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> str:
-    """Write reports/table72.md and refresh the README block; returns the table."""
+    """Write the table to ``--out`` (and the ``--readme`` block when asked); returns it."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--log-dir", type=Path, default=Path("logs"))
     parser.add_argument(
@@ -215,9 +216,11 @@ def main(argv: list[str] | None = None) -> str:
         help="dataset prefixes, a,b (e.g. armstrokes: arm data generated with scenario.strokes)",
     )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("reports/table72.md"))
-    parser.add_argument("--readme", type=Path, default=Path("README.md"))
-    parser.add_argument("--no-readme", action="store_true", help="only write --out")
+    parser.add_argument("--out", type=Path, default=Path("docs/results/table72.md"))
+    parser.add_argument(
+        "--readme", type=Path, default=None,
+        help="also replace the table72 block of this Markdown file (e.g. README.md)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     motion_presets = {
         "wind": (args.wind_preset or args.preset).split(","),
@@ -240,7 +243,7 @@ def main(argv: list[str] | None = None) -> str:
     )
     write_text(args.out, "# Table 7.2 (style): material classification on simulated clips\n\n"
                + table)  # fmt: skip
-    if not args.no_readme:
+    if args.readme is not None:
         update_readme(args.readme, table)
     print(table)
     return table

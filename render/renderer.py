@@ -19,6 +19,7 @@ Default size 112 x 112: see :mod:`render.camera`. The process-wide environment d
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 
@@ -32,6 +33,9 @@ from .effects import VisualEffects, apply_image_effects, effect_streams, shake_o
 from .lights import LightSpec
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# PyOpenGL logs at INFO that its optional C speed-up is not installed; on a command's console
+# that line lands in the middle of the progress bars and says nothing a user can act on.
+logging.getLogger("OpenGL.acceleratesupport").setLevel(logging.WARNING)
 
 
 def _load_triton_before_mesa() -> None:

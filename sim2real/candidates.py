@@ -245,8 +245,15 @@ def select_candidates(
     ]  # fmt: skip
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     """``python -m sim2real.candidates``: list the library for the default wind scene."""
+    import argparse
+
+    argparse.ArgumentParser(
+        prog="python -m sim2real.candidates",
+        description="List the candidate library (name, stage, field, strengths) of the "
+        "default wind scene.",
+    ).parse_args(argv)
     from datasets.spec import PRESETS
     from simulator.scenario import ScenarioWind
 

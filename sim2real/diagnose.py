@@ -15,6 +15,8 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from simulator.errors import check_bool, check_choice, check_device, check_float, check_int
+
 from .pipeline import run_diagnosis
 from .report import verdict
 
@@ -28,6 +30,7 @@ def run(cfg: DictConfig) -> dict:
     candidates = cfg.candidates
     if not isinstance(candidates, str):
         candidates = [str(c) for c in candidates]
+    check_choice(str(cfg.device), "device", ("auto", "cpu", "cuda"))
     return run_diagnosis(
         real_dir=cfg.real_dir,
         run=cfg.run,
@@ -38,15 +41,15 @@ def run(cfg: DictConfig) -> dict:
         candidates=candidates,
         strengths=OmegaConf.to_container(cfg.strengths, resolve=True),
         data_dir=cfg.data_dir,
-        clip_len=int(cfg.clip_len),
-        clip_stride=int(cfg.clip_stride),
-        alpha=float(cfg.alpha),
-        seed=int(cfg.seed),
-        sim_seed=int(cfg.sim_seed),
-        n_jobs=int(cfg.n_jobs),
-        device=str(cfg.device),
+        clip_len=check_int(cfg.clip_len, "clip_len", 1),
+        clip_stride=check_int(cfg.clip_stride, "clip_stride", 1),
+        alpha=check_float(cfg.alpha, "alpha", 0, 1, low_open=True),
+        seed=check_int(cfg.seed, "seed", 0),
+        sim_seed=check_int(cfg.sim_seed, "sim_seed", 0),
+        n_jobs=check_int(cfg.n_jobs, "n_jobs", 1),
+        device=check_device(cfg.device, "device"),
         name=name,
-        progress=bool(cfg.progress),
+        progress=check_bool(cfg.progress, "progress"),
     )
 
 

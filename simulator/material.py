@@ -273,7 +273,11 @@ class ClothMaterial:
     @staticmethod
     def from_classes(class_ids, *, dtype: torch.dtype = torch.float64) -> ClothMaterial:
         """Batch of subspace classes (basis ``camel-ponte-roma`` times (p, k))."""
-        ids = [int(c) for c in np.atleast_1d(np.asarray(class_ids))]
+        # Integral floats (1.0) name a class; others (1.7) are refused, never truncated.
+        ids = [
+            int(c) if isinstance(c, float) and c.is_integer() else c
+            for c in np.atleast_1d(np.asarray(class_ids)).tolist()
+        ]
         pk = [multipliers_from_class(c) for c in ids]
         return ClothMaterial.from_wang(
             load_wang_material(BASIS_MATERIAL),

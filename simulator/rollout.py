@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import torch
 
@@ -91,6 +92,7 @@ def simulate(
     settings: SimSettings | None = None,
     labels: list[int] | None = None,
     progress: bool = False,
+    on_step: Callable[[int, int], None] | None = None,
 ) -> MeshSequence:
     """Simulate B instances and return the recorded frames.
 
@@ -99,6 +101,9 @@ def simulate(
     solve for static equilibrium so recording starts exactly at rest. The first
     recorded frame is that rest state; then one frame every ``1 / fps`` seconds
     for ``record_time`` seconds.
+
+    ``progress`` shows a progress bar over the steps; ``on_step(step, total)`` is called
+    after every step instead, for callers that report progress themselves (dataset workers).
 
     Raises:
         SimulationDiverged: on NaN/inf or a speed above ``settings.max_speed``,
@@ -159,6 +164,8 @@ def simulate(
             frames.append(state.pos.float().cpu())
         if bar is not None:
             bar.update(1)
+        if on_step is not None:
+            on_step(step, total)
     if bar is not None:
         bar.close()
     pos = torch.stack(frames, dim=1)  # (B, K, V, 3)

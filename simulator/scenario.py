@@ -72,7 +72,7 @@ def stroke_profile(phase: float, strokes: int) -> tuple[float, float]:
 def _check_level(level: int) -> int:
     if level not in RESOLUTION_LEVELS:
         raise ValueError(
-            f"resolution_level must be one of {sorted(RESOLUTION_LEVELS)}, got {level!r}"
+            f"scenario.resolution_level must be one of {sorted(RESOLUTION_LEVELS)}, got {level!r}"
         )
     return RESOLUTION_LEVELS[level]
 

@@ -8,6 +8,7 @@ tumour (ratio 0.3, 70 kPa in a 30 kPa organ), generates the synthetic target, an
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 
@@ -84,5 +85,19 @@ def run_pso_benchmark(
     }
 
 
+def main(argv: list[str] | None = None) -> dict:
+    """``python -m simulator.inverse.benchmark_pso``: run the benchmark, print one JSON line."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tet-target", type=int, default=4000, help="organ tetrahedra")
+    parser.add_argument("--swarm", type=int, default=40, help="PSO particles")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.tet_target < 1 or args.swarm < 1:
+        parser.error("--tet-target and --swarm must be >= 1")
+    result = run_pso_benchmark(args.tet_target, args.swarm, args.seed)
+    print(json.dumps(result))
+    return result
+
+
 if __name__ == "__main__":
-    print(json.dumps(run_pso_benchmark()))
+    main()

@@ -51,8 +51,13 @@ def test_unknown_motion_is_named():
         (["+render.effects.fog=true"], "fog"),
         (["+effects.rain=true"], "rain"),
         (["preset.sims_per_class=-4"], "sims_per_class"),
-        (["texture=plaid"], "texture_mode"),
-        (["level=7"], "resolution_level"),
+        (["texture=plaid"], "texture must be one of grid, color, random"),
+        (["level=7"], r"level must be an integer in \[1, 3\]"),
+        (["classes=[0,1.7]"], r"classes\[1\] must be an integer class id in \[0, 53\]"),
+        (["classes=[0,0]"], "classes must not repeat"),
+        (["seed=abc"], "seed must be an integer >= 0, got 'abc'"),
+        (["render.camera.width=abc"], "render.camera.width must be an integer, got 'abc'"),
+        (["sim.max_dt=fast"], "sim.max_dt must be a number, got 'fast'"),
     ],
 )
 def test_bad_values_are_named(overrides, field):

@@ -55,6 +55,8 @@ def test_unit_size_batches_simulations():
         ({"texture_mode": "plaid"}, "texture_mode"),
         ({"classes": (0, 54)}, "classes"),
         ({"classes": ()}, "classes"),
+        ({"classes": (0, 1.7)}, r"classes must be integer class ids in \[0, 53\], got \[0, 1.7\]"),
+        ({"classes": (0, "1")}, "classes must be integer class ids"),
         ({"seed": -1}, "seed"),
         ({"lead_in": -0.1}, "lead_in"),
         ({"supersample": 0}, "supersample"),

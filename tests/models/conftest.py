@@ -36,3 +36,56 @@ def real_folder(tmp_path):
         rows.append(f"fabric{i}.mp4,{1.0 + i},{0.2 + 0.1 * i**2},W{1 + i % 2}")
     (tmp_path / "labels.csv").write_text("\n".join(rows) + "\n")
     return tmp_path
+
+
+TINY_NET = {
+    "_target_": "models.components.video_nets.CNNLSTMNet",
+    "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
+                "name": "alexnet5", "feature_dim": 16, "width": 0.25},
+    "hidden_size": 8,
+}  # fmt: skip
+
+
+def write_checkpoint(path, classes=54):
+    """An untrained CNN+LSTM checkpoint in train.py's format, predicting ``classes`` classes."""
+    import torch
+    from hydra.utils import instantiate
+
+    from models.material_classifier import MaterialClassifierModule
+
+    config = {**TINY_NET, "num_classes": classes}
+    torch.manual_seed(0)
+    module = MaterialClassifierModule(instantiate(config), net_config=config, method="tiny")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    hparams = {"net_config": config, "method": "tiny"}
+    torch.save({"hyper_parameters": hparams, "state_dict": module.state_dict()}, path)
+    return path
+
+
+FABRICS = 6
+"""Fabrics of :func:`fabric_folder`, each filmed at W1, W2 and W3."""
+
+
+@pytest.fixture
+def fabric_folder(tmp_path):
+    """Bouman-style real set: 6 fabrics x 3 winds in ``videos/``, plus one too-short video.
+
+    ``labels.csv`` has a ``fabric`` group column and a ``bending_rigidity`` column; a fabric's
+    measured values repeat on its three rows.
+    """
+    root = tmp_path / "fabrics"
+    (root / "videos").mkdir(parents=True)
+    rows = ["video,fabric,stiffness,density,bending_rigidity,wind"]
+    for f in range(FABRICS):
+        for w in range(3):
+            rng = np.random.default_rng(10 * f + w)
+            base = rng.integers(0, 255, size=(24, 32, 3), dtype=np.uint8)
+            frames = np.stack([np.roll(base, (f + w + 1) * t, axis=1) for t in range(8)])
+            write_mp4(root / "videos" / f"f{f}_w{w + 1}.mp4", frames, 15.0)
+            rows.append(f"f{f}_w{w + 1}.mp4,fabric{f},{1.0 + f},{0.1 + 0.05 * f**2},"
+                        f"{(f - 2.5) ** 2},W{w + 1}")  # fmt: skip
+    short = np.zeros((2, 24, 32, 3), dtype=np.uint8)
+    write_mp4(root / "videos" / "short.mp4", short, 15.0)
+    rows.append("short.mp4,fabric9,9.0,0.9,1.0,W1")
+    (root / "labels.csv").write_text("\n".join(rows) + "\n")
+    return root

@@ -84,3 +84,30 @@ def test_undefined_correlations_are_none_not_nan():
     assert constant.pearson is None and constant.spearman_ci is None
     with pytest.raises(ValueError, match="finite"):
         correlate([1.0, np.nan, 2.0], [1.0, 2.0, 3.0])
+
+
+def test_grouped_bootstrap_counts_fabrics_not_videos():
+    """Three identical videos per fabric carry the information of one: with the fabric as
+    group, r, intervals and p-values equal those of the 10 fabrics alone; treating the 30
+    videos as independent would give narrower intervals and smaller p-values."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=10)
+    y = 0.6 * x + rng.normal(scale=0.8, size=10)
+    fabrics = correlate(x, y, rounds=400, seed=2)
+    videos = np.repeat(x, 3), np.repeat(y, 3)
+    grouped = correlate(*videos, groups=np.repeat([f"fabric{i}" for i in range(10)], 3),
+                        rounds=400, seed=2)  # fmt: skip
+    assert (grouped.count, grouped.group_count) == (30, 10)
+    for field in ("pearson", "pearson_p", "spearman", "spearman_p"):
+        assert getattr(grouped, field) == pytest.approx(getattr(fabrics, field)), field
+    for field in ("pearson_ci", "spearman_ci"):
+        assert getattr(grouped, field) == pytest.approx(getattr(fabrics, field)), field
+    naive = correlate(*videos, rounds=400, seed=2)
+    assert naive.group_count == 30 and naive.pearson_p < grouped.pearson_p
+    assert np.ptp(naive.pearson_ci) < 0.8 * np.ptp(grouped.pearson_ci)
+    # ungrouped p-values are scipy's
+    assert fabrics.pearson_p == pytest.approx(stats.pearsonr(x, y)[1])
+    assert fabrics.spearman_p == pytest.approx(stats.spearmanr(x, y)[1])
+    # fewer than 3 groups: r is defined, intervals and p-values are not
+    few = correlate(videos[0][:6], videos[1][:6], groups=[0, 0, 0, 1, 1, 1], rounds=50)
+    assert few.pearson is not None and few.pearson_ci is None and few.pearson_p is None

@@ -24,9 +24,7 @@ FAST = [
 
 def _compose(config="train", overrides=(), hydra=False):
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        return compose(
-            config_name=config, overrides=list(overrides), return_hydra_config=hydra
-        )
+        return compose(config_name=config, overrides=list(overrides), return_hydra_config=hydra)
 
 
 def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
@@ -166,8 +164,9 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     encoder = f"model.net.encoder_checkpoint={base1}/checkpoints/best.ckpt"
     cfg2 = _train_cfg(model_dataset, base2, "model=base2", encoder, log_dir=logs)
     train_entry.train(cfg2)
-    b1, b2 = load_classifier(base1 / "checkpoints/best.ckpt"), load_classifier(
-        base2 / "checkpoints/best.ckpt"
+    b1, b2 = (
+        load_classifier(base1 / "checkpoints/best.ckpt"),
+        load_classifier(base2 / "checkpoints/best.ckpt"),
     )
     for key, value in b1.net.encoder.state_dict().items():
         torch.testing.assert_close(b2.net.encoder.state_dict()[key], value, msg=key)
@@ -204,14 +203,18 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
         f"out_dir={out}", "real.clip_len=4", "real.clip_stride=4", "real.size=32",
         "bootstrap.rounds=50",
     ])  # fmt: skip
+    training_report = (run / "eval" / "sim_test.json").read_bytes()
     results = evaluate_run(cfg)
     assert results["sim"]["clips"] == 2 and results["real"]["videos"] == 4
     correlations = results["real"]["correlations"]
     assert set(correlations) == {"all", "W1", "W2"}
     assert correlations["all"]["stiffness"]["count"] == 4
+    folder = Path(results["out_dir"])  # out_dir/<dataset>-test+<real folder>-<hash>
+    assert folder.parent == out and folder.name.startswith(f"{model_dataset.name}-test+")
     for name in ("real.json", "real.md", "real_videos.csv", "sim_test.json", "confusion_test.png"):
-        assert (out / name).stat().st_size > 0
-    assert "Table 7.3" in (out / "real.md").read_text()
+        assert (folder / name).stat().st_size > 0
+    assert "Table 7.3" in (folder / "real.md").read_text()
+    assert (run / "eval" / "sim_test.json").read_bytes() == training_report
 
 
 def test_one_config_and_seed_train_the_same_weights(model_dataset, tmp_path):

@@ -51,7 +51,7 @@ def test_several_presets_and_textures_give_a_row_each_run_setting(tmp_path):
     _report(logs, "arm-L1-random-full-s0-cnn_lstm_diff", 0.5)
     _report(logs, "arm-L1-grid-full-s0-cnn_lstm_diff", 0.625)
     table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
-                  "--out", str(tmp_path / "t.md"), "--no-readme",
+                  "--out", str(tmp_path / "t.md"),
                   "--wind-preset", "full", "--arm-preset", "small,full",
                   "--texture", "random,grid"])  # fmt: skip
     arm = [[c.strip() for c in line.split("|")[1:-1]]
@@ -72,7 +72,7 @@ def test_extra_scene_gets_rows_with_its_motions_thesis_numbers(tmp_path):
     logs = tmp_path / "logs"
     _report(logs, "armstrokes-L1-grid-full-s0-cnn_lstm_diff", 0.5)
     table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
-                  "--out", str(tmp_path / "t.md"), "--no-readme",
+                  "--out", str(tmp_path / "t.md"),
                   "--scenes", "arm,armstrokes", "--texture", "grid"])  # fmt: skip
     (row,) = [[c.strip() for c in line.split("|")[1:-1]]
               for line in table.splitlines() if line.startswith("| armstrokes")]  # fmt: skip
@@ -83,7 +83,18 @@ def test_extra_scene_gets_rows_with_its_motions_thesis_numbers(tmp_path):
     assert "arm grid full held-out sims" in table.split("No runs yet:")[1]
     with pytest.raises(SystemExit):
         main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
-              "--out", str(tmp_path / "t.md"), "--no-readme", "--scenes", "flag"])  # fmt: skip
+              "--out", str(tmp_path / "t.md"), "--scenes", "flag"])  # fmt: skip
+
+
+def test_default_writes_docs_results_and_leaves_the_readme_alone(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _report(tmp_path / "logs", "wind-L1-random-full-s0-base1", 0.125)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{START}\nold table\n{END}\noutro\n")
+    table = main(["--ledger", str(tmp_path / "runs")])
+    assert readme.read_text() == f"intro\n{START}\nold table\n{END}\noutro\n"
+    assert (tmp_path / "docs" / "results" / "table72.md").read_text().endswith(table)
+    assert "12.5 (50)" in table
 
 
 def test_readme_without_markers_is_refused(tmp_path):
@@ -99,7 +110,7 @@ def test_ledger_keeps_the_table_when_run_folders_are_gone(tmp_path):
     _report(logs, "wind-L1-random-full-s0-base1", 0.125, epochs=3, train_minutes=4.0,
             confusion=[[1, 0], [0, 1]])  # fmt: skip
     _report(logs, "wind-L1-random-full-s0-seq-cnn_lstm", 0.75)
-    args = ["--ledger", str(ledger), "--out", str(tmp_path / "t.md"), "--no-readme"]
+    args = ["--ledger", str(ledger), "--out", str(tmp_path / "t.md")]
     first = main(["--log-dir", str(logs), *args])
     entry = json.loads((ledger / "wind-L1-random-full-s0-base1.json").read_text())
     assert entry["acc"] == 0.125 and entry["run"] == "wind-L1-random-full-s0-base1"
@@ -121,7 +132,7 @@ def test_mesh_levels_get_rows_beside_the_thesis_row_of_their_level(tmp_path):
     _report(logs, "wind-L1-random-full-s0-base1", 0.25, epochs=5, train_minutes=8.0)
     _report(logs, "wind-L3-random-full-s0-base1", 0.5, epochs=5, train_minutes=9.0)
     table = main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
-                  "--out", str(tmp_path / "t.md"), "--no-readme", "--scenes", "wind",
+                  "--out", str(tmp_path / "t.md"), "--scenes", "wind",
                   "--level", "1,3"])  # fmt: skip
     rows = [[c.strip() for c in line.split("|")[1:-1]]
             for line in table.splitlines() if line.startswith("| wind")]  # fmt: skip
@@ -134,4 +145,4 @@ def test_mesh_levels_get_rows_beside_the_thesis_row_of_their_level(tmp_path):
     assert "L1 wind random full thesis sub-seq." in missing and "L3" not in missing
     with pytest.raises(SystemExit):
         main(["--log-dir", str(logs), "--ledger", str(tmp_path / "runs"),
-              "--out", str(tmp_path / "t.md"), "--no-readme", "--level", "1,4"])  # fmt: skip
+              "--out", str(tmp_path / "t.md"), "--level", "1,4"])  # fmt: skip

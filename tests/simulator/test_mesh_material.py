@@ -119,6 +119,11 @@ def test_unknown_material_and_class_ids():
             multipliers_from_class(bad)
     with pytest.raises(MaterialError, match="not in the subspace"):
         class_from_multipliers(7, 1)
+    # A batch of classes refuses a non-integer id instead of truncating it (1.7 is not class 1).
+    for bad in ([0, 1.7], [np.float64(26.5)]):
+        with pytest.raises(MaterialError, match=r"class_id must be an integer in \[0, 53\]"):
+            ClothMaterial.from_classes(bad)
+    assert ClothMaterial.from_classes([0.0, 53.0]).batch_size == 2
 
 
 def test_class_ids_round_trip_and_order():

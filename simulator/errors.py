@@ -1,0 +1,418 @@
+"""Errors a user can fix, field checks that raise them, and the one-line report at entry points.
+
+An entry point (a ``@hydra.main`` function) is wrapped with :func:`report_user_errors`: an
+:class:`InputError` (or another error a user can fix: ``FileNotFoundError`` and the packages'
+domain errors, see ``_user_errors``) prints one line ``error: <message>`` on stderr and exits
+with status 2, instead of a traceback. Programming errors still raise with their traceback.
+Messages name the field and the allowed values.
+
+An entry point checks every field before it does any work: scalars with :func:`check_int`,
+:func:`check_float`, :func:`check_choice`, :func:`check_bool`, :func:`check_class_ids` and
+:func:`check_device`; instantiable nodes with :func:`check_node` (types from the target's
+annotations); and it builds them inside :func:`config_errors`, so that the range checks of
+their constructors (a ValueError naming the field) become :class:`InputError` too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import functools
+import importlib
+import inspect
+import math
+import sys
+import types
+import typing
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+
+class InputError(ValueError):
+    """Bad user input; the message names the field and the allowed values."""
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """Errors a user can fix: ours, plus the domain errors of the packages (imported lazily)."""
+    errors: list[type[BaseException]] = [InputError, FileNotFoundError]
+    from simulator.material import MaterialError
+    from simulator.mesh import MeshError
+
+    errors += [MaterialError, MeshError]
+    try:
+        from datasets.shards import ShardError
+    except ImportError:  # the simulator works without the datasets package
+        pass
+    else:
+        errors.append(ShardError)
+    return tuple(errors)
+
+
+def _user_error_in(exc: BaseException) -> BaseException | None:
+    """``exc`` if it is a user error, or the user error that Hydra's instantiate wrapped."""
+    user = _user_errors()
+    current: BaseException | None = exc
+    for _ in range(8):  # Hydra nests at most a few wrappers
+        if current is None or isinstance(current, user):
+            return current
+        if not type(current).__module__.startswith("hydra."):
+            return None
+        current = current.__cause__
+    return None
+
+
+def report_user_errors(main: Callable[..., Any]) -> Callable[..., Any]:
+    """Wrap an entry point so that a user error prints one line and exits with status 2."""
+
+    @functools.wraps(main)
+    def wrapped(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except Exception as exc:
+            user = _user_error_in(exc)
+            if user is None:
+                raise
+            message = " ".join(str(user).split())  # one line, whatever the message held
+            print(f"error: {message}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+    return wrapped
+
+
+@contextlib.contextmanager
+def config_errors() -> Iterator[None]:
+    """Turn the ValueErrors of objects built from the config into :class:`InputError`.
+
+    The config's dataclasses and modules validate their fields in their constructors with a
+    ValueError that names the field; while they are built from a command line, that is the
+    user's error. Hydra's ``instantiate`` wraps it, so the wrapper is unwrapped first.
+    """
+    try:
+        yield
+    except Exception as exc:
+        cause: BaseException | None = exc
+        while cause is not None and type(cause).__module__.startswith("hydra."):
+            cause = cause.__cause__
+        if isinstance(cause, InputError) or not isinstance(cause, ValueError):
+            raise
+        raise InputError(" ".join(str(cause).split())) from exc
+
+
+def check_int(value: Any, field: str, low: int | None = None, high: int | None = None) -> int:
+    """``value`` as an int in ``[low, high]``; refuses bools, non-integral floats and text."""
+    ok = isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(value, float) and value.is_integer():
+        value, ok = int(value), True
+    if isinstance(value, str):
+        try:
+            value, ok = int(value.strip()), True
+        except ValueError:
+            ok = False
+    if not ok:
+        raise InputError(f"{field} must be an integer{_range_text(low, high)}, got {value!r}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise InputError(f"{field} must be an integer{_range_text(low, high)}, got {value}")
+    return int(value)
+
+
+def check_float(
+    value: Any,
+    field: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_open: bool = False,
+) -> float:
+    """``value`` as a finite float in ``[low, high]`` (``(low, high]`` with ``low_open``)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if isinstance(value, bool) or not math.isfinite(number):
+        raise InputError(
+            f"{field} must be a finite number{_range_text(low, high, low_open)}, got {value!r}"
+        )
+    below = low is not None and (number <= low if low_open else number < low)
+    if below or (high is not None and number > high):
+        raise InputError(
+            f"{field} must be a number{_range_text(low, high, low_open)}, got {number:g}"
+        )
+    return number
+
+
+def check_choice(value: Any, field: str, choices: Iterable[Any]) -> Any:
+    """``value`` if it is one of ``choices``."""
+    allowed = list(choices)
+    if value not in allowed:
+        raise InputError(f"{field} must be one of {', '.join(map(str, allowed))}; got {value!r}")
+    return value
+
+
+def check_bool(value: Any, field: str) -> bool:
+    """``value`` if it is a bool (``true`` / ``false`` on the command line)."""
+    if not isinstance(value, bool):
+        raise InputError(f"{field} must be true or false, got {value!r}")
+    return value
+
+
+def check_class_ids(values: Any, field: str = "classes") -> tuple[int, ...]:
+    """Subspace class ids as ints; refuses a non-list, text and non-integral numbers.
+
+    ``1.0`` is class 1; ``1.7`` is refused rather than truncated to class 1.
+    """
+    from simulator.material import CLASS_COUNT
+
+    allowed = f"integer class ids in [0, {CLASS_COUNT - 1}], e.g. {field}=[0,26,53]"
+    if isinstance(values, str | bytes | Mapping) or not isinstance(values, Iterable):
+        raise InputError(f"{field} must be a list of {allowed}; got {values!r}")
+    ids = []
+    for position, value in enumerate(values):
+        integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+        if isinstance(value, bool) or not integral or not 0 <= value < CLASS_COUNT:
+            raise InputError(
+                f"{field}[{position}] must be an integer class id in [0, {CLASS_COUNT - 1}], "
+                f"got {value!r}"
+            )
+        ids.append(int(value))
+    if not ids:
+        raise InputError(f"{field} must be a non-empty list of {allowed}; got []")
+    return tuple(ids)
+
+
+def check_device(value: Any, field: str) -> str:
+    """A torch device name (``auto``, ``cpu``, ``cuda``, ``cuda:N``) this machine has."""
+    import torch
+
+    text = str(value).strip().lower()
+    if text not in ("auto", "cpu", "cuda") and not (
+        text.startswith("cuda:") and text[5:].isdigit()
+    ):
+        raise InputError(f"{field} must be one of auto, cpu, cuda, cuda:N; got {value!r}")
+    if text.startswith("cuda"):
+        require_cuda(f"{field}={value}", f"use {field}=cpu or {field}=auto")
+        index = int(text[5:]) if ":" in text else 0
+        if index >= torch.cuda.device_count():
+            raise InputError(
+                f"{field}={value}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            )
+    return text
+
+
+def require_cuda(request: str, alternative: str) -> None:
+    """Refuse ``request`` (e.g. ``trainer.accelerator=gpu``) in one line when there is no CUDA."""
+    import torch
+
+    if not torch.cuda.is_available():
+        raise InputError(
+            f"{request} asks for CUDA, but this machine has no CUDA device "
+            f"(torch.cuda.is_available() is false); {alternative}"
+        )
+
+
+def check_node(values: Any, field: str) -> None:
+    """Type-check an instantiable config node against its ``_target_``'s annotations.
+
+    Each key must be a parameter of the target (a dataclass field, a function argument) and
+    its value must fit the annotation: ``sim.max_dt=abc`` is refused as ``sim.max_dt must be
+    a number, got 'abc'`` before the target is built. Nested nodes (a value with its own
+    ``_target_``, or a mapping for a dataclass-typed field) are checked too. Annotations that
+    a config value cannot be judged against (modules, callables) are left to the target.
+    Range checks stay with the target's own validation (see :func:`config_errors`).
+
+    Args:
+        values: The node as a plain mapping or a resolved ``DictConfig``.
+        field: Its dotted name on the command line (``sim``, ``render.camera``).
+    """
+    target = values.get("_target_") if isinstance(values, Mapping) else None
+    if target is None:
+        return
+    try:
+        obj = _import_target(str(target))
+    except (ImportError, AttributeError) as err:
+        raise InputError(f"{field}._target_: cannot import {target!r} ({err})") from None
+    _check_params(values, _params_of(obj), field)
+
+
+def _import_target(path: str) -> Any:
+    parts = path.split(".")
+    for cut in range(len(parts) - 1, 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:cut]))
+        except ImportError:
+            continue
+        for name in parts[cut:]:
+            obj = getattr(obj, name)
+        return obj
+    return importlib.import_module(path)
+
+
+def _params_of(obj: Any) -> dict[str, Any] | None:
+    """Parameter name -> annotation (``Any`` where none); ``None`` if it takes ``**kwargs``."""
+    if dataclasses.is_dataclass(obj) and isinstance(obj, type):
+        try:
+            hints = typing.get_type_hints(obj)
+        except Exception:  # an annotation that does not resolve: check names only
+            hints = {}
+        return {f.name: hints.get(f.name, Any) for f in dataclasses.fields(obj) if f.init}
+    function = typing.cast(Any, obj).__init__ if isinstance(obj, type) else obj
+    try:
+        signature = inspect.signature(function)
+    except (TypeError, ValueError):
+        return None
+    try:
+        hints = typing.get_type_hints(function)
+    except Exception:
+        hints = {}
+    params = {}
+    for name, param in signature.parameters.items():
+        if param.kind is param.VAR_KEYWORD:
+            return None
+        if param.kind is not param.VAR_POSITIONAL and name != "self":
+            params[name] = hints.get(name, Any)
+    return params
+
+
+def _check_params(values: Mapping, params: dict[str, Any] | None, field: str) -> None:
+    for key, value in values.items():
+        key = str(key)
+        if key.startswith("_"):
+            continue
+        name = f"{field}.{key}"
+        if params is not None and key not in params:
+            raise InputError(f"{name} is not a field of {field}; allowed: {', '.join(params)}")
+        if isinstance(value, Mapping) and "_target_" in value:
+            check_node(value, name)
+            continue
+        annotation = Any if params is None else params[key]
+        if value == "???":
+            continue  # a required value Hydra reports itself
+        if _fits(value, annotation) is False:
+            raise InputError(f"{name} must be {_describe(annotation)}, got {value!r}")
+        data_class = _dataclass_in(annotation)
+        if data_class is not None and isinstance(value, Mapping):
+            _check_params(value, _params_of(data_class), name)
+
+
+_SCALARS = (str, int, float, bool, type(None))
+
+
+def _is_union(annotation: Any) -> bool:
+    return typing.get_origin(annotation) in (typing.Union, types.UnionType)
+
+
+def _dataclass_in(annotation: Any) -> type | None:
+    members = typing.get_args(annotation) if _is_union(annotation) else (annotation,)
+    found = [m for m in members if isinstance(m, type) and dataclasses.is_dataclass(m)]
+    return found[0] if len(found) == 1 else None
+
+
+def _fits(value: Any, annotation: Any) -> bool | None:
+    """Whether a config value fits ``annotation``: True, False, or None (cannot tell)."""
+    if annotation is Any or isinstance(annotation, typing.TypeVar | str):
+        return None
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if _is_union(annotation):
+        results = [_fits(value, member) for member in args]
+        if True in results:
+            return True
+        return False if all(r is False for r in results) else None
+    if origin is typing.Literal:
+        return any(value == a and type(value) is type(a) for a in args)
+    if annotation is type(None):
+        return value is None
+    if annotation is bool:
+        return isinstance(value, bool)
+    if annotation is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if annotation is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if annotation is str:
+        return isinstance(value, str)
+    if annotation is Path or (isinstance(annotation, type) and issubclass(annotation, Path)):
+        return isinstance(value, str | Path)
+    if isinstance(annotation, type) and issubclass(annotation, enum.Enum):
+        return any(value == m.value or value == m.name for m in annotation)
+    if origin in (tuple, list, Sequence) or annotation in (tuple, list):
+        if not isinstance(value, list | tuple):
+            return False if isinstance(value, _SCALARS) else None
+        if not args:
+            return True
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(value) != len(args):
+                return False
+            results = [_fits(v, a) for v, a in zip(value, args, strict=True)]
+        else:
+            results = [_fits(v, args[0]) for v in value]
+        return False if False in results else (None if None in results else True)
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
+        return isinstance(value, Mapping | annotation) or (
+            False if isinstance(value, _SCALARS) else None
+        )
+    if isinstance(annotation, type) and _config_cannot_be(annotation):
+        return False if isinstance(value, _SCALARS) else None
+    return None
+
+
+def _config_cannot_be(cls: type) -> bool:
+    """Classes a plain config value never is (tensors, modules), though a target may say so."""
+    names = {f"{c.__module__}.{c.__qualname__}" for c in cls.__mro__}
+    return bool(names & {"torch.Tensor", "torch.nn.modules.module.Module"})
+
+
+_PLURAL: dict[Any, str] = {
+    int: "integers",
+    float: "numbers",
+    bool: "booleans",
+    str: "strings",
+    Path: "paths",
+}
+
+
+def _describe(annotation: Any) -> str:
+    """What a value of ``annotation`` is, in words (for the error message)."""
+    members = typing.get_args(annotation) if _is_union(annotation) else (annotation,)
+    literals: list[Any] = []
+    words: list[str] = []
+    for member in members:
+        if typing.get_origin(member) is typing.Literal:
+            literals += list(typing.get_args(member))
+        elif isinstance(member, type) and issubclass(member, enum.Enum):
+            literals += [m.value for m in member]
+        elif (word := _noun(member)) and word not in words:
+            words.append(word)
+    if literals:
+        words.insert(0, "one of " + ", ".join(dict.fromkeys(map(str, literals))))
+    return " or ".join(words) or "a valid value"
+
+
+def _noun(annotation: Any) -> str:
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    simple = {
+        int: "an integer", float: "a number", bool: "true or false", str: "text",
+        type(None): "null", Path: "a path",
+    }  # fmt: skip
+    if annotation in simple:
+        return simple[annotation]
+    if origin in (tuple, list, Sequence):
+        if origin is tuple and args and not (len(args) == 2 and args[1] is Ellipsis):
+            item = args[0] if len(set(args)) == 1 else None
+            return f"a list of {len(args)} {_PLURAL.get(item, 'values')}"
+        item = args[0] if args else None
+        if _is_union(item):
+            item = next((a for a in typing.get_args(item) if a in _PLURAL), None)
+        return f"a list of {_PLURAL.get(item, 'values')}"
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
+        return f"a mapping of {annotation.__name__} fields"
+    return ""
+
+
+def _range_text(low, high, low_open: bool = False) -> str:
+    if low is not None and high is not None:
+        return f" in {'(' if low_open else '['}{low}, {high}]"
+    if low is not None:
+        return f" {'>' if low_open else '>='} {low}"
+    if high is not None:
+        return f" <= {high}"
+    return ""
