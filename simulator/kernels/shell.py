@@ -236,6 +236,54 @@ def _bending(x, hinge, rest_angle, scale, area, samples, knots, bend_scale, want
     return bend_scale * area * psi
 
 
+@njit(cache=True, error_model="numpy")
+def _shell_instance(
+    x, tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
+    hinges, rest_angle, edge_scale, edge_area, samples, knots, bend_scale, hinge_slots,
+    want, grad, values,
+):  # fmt: skip
+    """Energy of one instance [J]; with ``want`` also adds its gradient and Hessian blocks.
+
+    ``x`` (V, 3), ``row0`` (4,), ``fibres`` (8,), ``samples`` (E, 5), ``grad`` (V, 3) and
+    ``values`` (V * K, 3, 3) are this instance's; the rest as :func:`shell_assemble`.
+    """
+    g3 = np.empty((3, 3))
+    h3 = np.empty((3, 3, 3, 3))
+    g4 = np.empty((8, 3))
+    work = _membrane_work()
+    total = 0.0
+    for f in range(tri.shape[0]):
+        total += _membrane(
+            x, tri[f], rest_inv[f], tri_area[f], row0, fibres, fvec, e_s, want, g3, h3, work
+        )
+        if not want:
+            continue
+        for i in range(3):
+            for d in range(3):
+                grad[tri[f, i], d] += g3[i, d]
+            for j in range(3):
+                slot = tri_slots[f, i, j]
+                for d in range(3):
+                    for e in range(3):
+                        values[slot, d, e] += h3[i, j, d, e]
+    for n in range(hinges.shape[0]):
+        total += _bending(
+            x, hinges[n], rest_angle[n], edge_scale[n], edge_area[n], samples[n], knots,
+            bend_scale, want, g4,
+        )  # fmt: skip
+        if not want:
+            continue
+        for i in range(4):
+            for d in range(3):
+                grad[hinges[n, i], d] += g4[i, d]
+            for j in range(4):
+                slot = hinge_slots[n, i, j]
+                for d in range(3):
+                    for e in range(3):
+                        values[slot, d, e] += g4[4 + i, d] * g4[4 + j, e]
+    return total
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def shell_assemble(
     pos, tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
@@ -267,39 +315,11 @@ def shell_assemble(
         values: output (B, V * K, 3, 3), added to.
     """
     for b in prange(pos.shape[0]):
-        x = pos[b]
-        g3 = np.empty((3, 3))
-        h3 = np.empty((3, 3, 3, 3))
-        g4 = np.empty((8, 3))
-        work = _membrane_work()
-        total = 0.0
-        for f in range(tri.shape[0]):
-            total += _membrane(
-                x, tri[f], rest_inv[f], tri_area[f], row0[b], fibres[b], fvec, e_s, True, g3, h3,
-                work,
-            )  # fmt: skip
-            for i in range(3):
-                for d in range(3):
-                    grad[b, tri[f, i], d] += g3[i, d]
-                for j in range(3):
-                    slot = tri_slots[f, i, j]
-                    for d in range(3):
-                        for e in range(3):
-                            values[b, slot, d, e] += h3[i, j, d, e]
-        for n in range(hinges.shape[0]):
-            total += _bending(
-                x, hinges[n], rest_angle[n], edge_scale[n], edge_area[n], samples[b, n], knots,
-                bend_scale, True, g4,
-            )  # fmt: skip
-            for i in range(4):
-                for d in range(3):
-                    grad[b, hinges[n, i], d] += g4[i, d]
-                for j in range(4):
-                    slot = hinge_slots[n, i, j]
-                    for d in range(3):
-                        for e in range(3):
-                            values[b, slot, d, e] += g4[4 + i, d] * g4[4 + j, e]
-        energy[b] += total
+        energy[b] += _shell_instance(
+            pos[b], tri, rest_inv, tri_area, tri_slots, row0[b], fibres[b], fvec, e_s,
+            hinges, rest_angle, edge_scale, edge_area, samples[b], knots, bend_scale,
+            hinge_slots, True, grad[b], values[b],
+        )  # fmt: skip
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -310,22 +330,14 @@ def shell_energy(
     """Membrane + bending energy [J] per instance, (B,); arguments as :func:`shell_assemble`."""
     batch = pos.shape[0]
     out = np.zeros(batch)
+    no_slots3 = np.zeros((1, 3, 3), dtype=tri.dtype)
+    no_slots4 = np.zeros((1, 4, 4), dtype=tri.dtype)
     for b in prange(batch):
-        x = pos[b]
-        dummy3 = np.empty((3, 3))
-        dummy4 = np.empty((3, 3, 3, 3))
-        dummy8 = np.empty((8, 3))
-        work = _membrane_work()
-        total = 0.0
-        for f in range(tri.shape[0]):
-            total += _membrane(
-                x, tri[f], rest_inv[f], tri_area[f], row0[b], fibres[b], fvec, e_s, False,
-                dummy3, dummy4, work,
-            )  # fmt: skip
-        for n in range(hinges.shape[0]):
-            total += _bending(
-                x, hinges[n], rest_angle[n], edge_scale[n], edge_area[n], samples[b, n], knots,
-                bend_scale, False, dummy8,
-            )  # fmt: skip
-        out[b] = total
+        unused_grad = np.empty((1, 3))
+        unused_values = np.empty((1, 3, 3))
+        out[b] = _shell_instance(
+            pos[b], tri, rest_inv, tri_area, no_slots3, row0[b], fibres[b], fvec, e_s,
+            hinges, rest_angle, edge_scale, edge_area, samples[b], knots, bend_scale,
+            no_slots4, False, unused_grad, unused_values,
+        )  # fmt: skip
     return out
