@@ -111,10 +111,14 @@ class BlockSparse:
         self.values.view(blocks.shape[0], -1, 3, 3).index_add_(1, self._diag_slots(), blocks)
 
     def _diag_slots(self) -> torch.Tensor:
-        cols = self.pattern.cols
-        rows = torch.arange(cols.shape[0], device=cols.device)
-        first = (cols == rows[:, None]).int().argmax(dim=1)
-        return rows * cols.shape[1] + first
+        """Flat slot of each row's diagonal block (V,), computed once per pattern."""
+        cached = self.pattern._slot_cache.get("diagonal")
+        if cached is None:
+            cols = self.pattern.cols
+            rows = torch.arange(cols.shape[0], device=cols.device)
+            first = (cols == rows[:, None]).int().argmax(dim=1)
+            cached = self.pattern._slot_cache["diagonal"] = rows * cols.shape[1] + first
+        return cached
 
     def diagonal(self) -> torch.Tensor:
         """Diagonal 3x3 blocks, shape (B, V, 3, 3)."""
