@@ -60,13 +60,20 @@ def _switch(stage: str):
     return dataclasses.field(default=False, metadata={"stage": stage})
 
 
-def _strength(default: float, of: str, low: float, high: float, *, integer: bool = False):
+def _strength(
+    default: float, of: str, low: float, high: float, *, integer: bool = False,
+    neutral: float | None = None,
+):  # fmt: skip
     """A field that is the strength of switch ``of``, plausible in [low, high].
 
     Same metadata as :func:`simulator.effects.strength` (not imported: it would pull torch
     into ``render``); the sim-to-real diagnosis fits the strength within this range.
+    ``neutral``: the strength at which the switch changes nothing, when it is not below the
+    range (a frame-rate ratio of 1, a JPEG quality of 100, the matte roughness 1).
     """
     meta = {"strength_of": of, "plausible": (low, high), "integer": integer}
+    if neutral is not None:
+        meta["neutral"] = neutral
     return dataclasses.field(default=default, metadata=meta)
 
 
@@ -109,13 +116,13 @@ class VisualEffects:
     """Signal-independent noise std [8-bit levels]."""
     noise_shot_gain: float = 0.15
     """Signal-dependent (shot) noise variance per level [8-bit levels]."""
-    jpeg_quality: int = _strength(50, "compression", 10, 90, integer=True)
+    jpeg_quality: int = _strength(50, "compression", 10, 90, integer=True, neutral=100)
     """JPEG quality, 1 (worst) to 100."""
     light_direction_jitter_deg: float = 25.0
     """Largest change of the key light's direction [deg]."""
     light_intensity_jitter: float = _strength(0.3, "lighting_variation", 0.05, 0.6)
     """Key and ambient intensities scale by factors drawn in 1 ± this, in [0, 1)."""
-    specular_roughness: float = _strength(0.35, "specular", 0.1, 0.8)
+    specular_roughness: float = _strength(0.35, "specular", 0.1, 0.8, neutral=1.0)
     """PBR roughness of the glossy cloth, in [0.04, 1]."""
     shake_translation: float = _strength(0.004, "camera_shake", 0.001, 0.012)
     """Camera shake translation amplitude (std per axis) [m]."""
@@ -129,7 +136,7 @@ class VisualEffects:
     """Largest blur-disc radius [px]."""
     white_balance_shift: float = _strength(0.12, "white_balance", 0.03, 0.3)
     """Largest relative change of one channel's gain, in [0, 1)."""
-    frame_rate_ratio: float = _strength(0.5, "frame_rate", 0.5, 2.0)
+    frame_rate_ratio: float = _strength(0.5, "frame_rate", 0.5, 2.0, neutral=1.0)
     """Output frame rate / input frame rate (> 0); the clip keeps its duration."""
     frame_rate_mode: FrameRateMode = FrameRateMode.BLEND
     """``blend`` or ``drop`` (see :class:`FrameRateMode`)."""

@@ -61,6 +61,9 @@ class Candidate:
     choices: tuple = ()
     default: object = None
     """The nominal value of the strength / scene field."""
+    neutral: float | None = None
+    """The strength at which the effect changes nothing, when it is not below the range: a
+    scene field's nominal value, a frame-rate ratio of 1, a JPEG quality of 100."""
     doc: str = ""
 
     @property
@@ -72,6 +75,11 @@ class Candidate:
     def binary(self) -> bool:
         """True when there is nothing to fit."""
         return self.low is None and not self.choices
+
+    @property
+    def log_scale(self) -> bool:
+        """True when strengths are spaced (and fitted) in log scale: a range over a factor 4."""
+        return self.low is not None and self.low > 0 and self.high / self.low > 4
 
     def strengths(self, count: int) -> tuple:
         """The strengths tried, in increasing order.
@@ -86,7 +94,7 @@ class Candidate:
             return (None,)
         if count == 1:
             grid = np.array([math.sqrt(self.low * self.high) if self.low > 0 else self.high])
-        elif self.low > 0 and self.high / self.low > 4:
+        elif self.log_scale:
             grid = np.geomspace(self.low, self.high, count)
         else:
             grid = np.linspace(self.low, self.high, count)
@@ -166,6 +174,7 @@ def _switch_candidates(cls, registry: str) -> list[Candidate]:
                 "param": param.name, "low": low, "high": high,
                 "integer": bool(param.metadata.get("integer", False)),
                 "default": getattr(defaults, param.name),
+                "neutral": param.metadata.get("neutral"),
             }  # fmt: skip
         out.append(
             Candidate(
@@ -187,6 +196,7 @@ def _scene_candidates(spec: DatasetSpec) -> list[Candidate]:
             kwargs = {"choices": tuple(field.metadata["choices"])}
         elif "plausible" in field.metadata:
             kwargs = dict(zip(("low", "high"), field.metadata["plausible"], strict=True))
+            kwargs["neutral"] = getattr(spec.scenario, field.name)
         else:
             continue
         out.append(

@@ -30,12 +30,23 @@ from scipy import stats as sstats
 
 from .candidates import STAGES
 from .ladder import LadderFeatures
-from .stats import Gap, compare, gap_closed, median_bandwidth, mmd2_unbiased, standardize
+from .stats import (
+    CI_LEVEL,
+    Gap,
+    bootstrap_draws,
+    compare,
+    gap_closed,
+    median_bandwidth,
+    mmd2_replicates,
+    mmd2_unbiased,
+    standardize,
+)
 
 __all__ = [
     "OPEN_SET_MIN_CLOSURE",
     "CandidateResult",
     "candidate_result",
+    "fit_strength",
     "localise",
     "probe_transfer",
     "rank_candidates",
@@ -165,6 +176,10 @@ class CandidateResult:
     """Rung -> fraction of the floor-corrected gap closed, per strength."""
     score: list[float]
     """Mean closure over the scored rungs, per strength."""
+    fitted: float | None = None
+    """Continuous strength fit (:func:`fit_strength`); ``None``: not fitted (switch, choice)."""
+    fit_interval: tuple[float, float] | None = None
+    """95 % group-bootstrap interval of :attr:`fitted`."""
 
     @property
     def best(self) -> int:
@@ -183,22 +198,31 @@ class CandidateResult:
 
     @property
     def interval(self) -> tuple:
-        """(lowest, highest) strength scoring within :data:`CONFUSABLE_WITHIN` of the best.
+        """(lowest, highest) strength the data cannot tell from the best.
 
-        The range the data cannot tell apart; ``(None, None)`` for switches and choices.
+        The group-bootstrap interval of the continuous fit when :func:`fit_strength` ran;
+        else the grid strengths scoring within :data:`CONFUSABLE_WITHIN` of the best;
+        ``(None, None)`` for switches and choices.
         """
+        if self.fit_interval is not None:
+            return tuple(self.fit_interval)
         values = [
             s for s, v in zip(self.strengths, self.score, strict=True)
             if isinstance(s, int | float) and v >= self.best_score - CONFUSABLE_WITHIN
         ]  # fmt: skip
         return (min(values), max(values)) if values else (None, None)
 
+    @property
+    def fitted_strength(self):
+        """The continuous fit when there is one, else the best grid strength."""
+        return self.best_strength if self.fitted is None else self.fitted
+
     def to_json(self) -> dict:
         """Plain JSON."""
         out = dataclasses.asdict(self)
         out.update(
             best_strength=self.best_strength, best_score=self.best_score,
-            strength_interval=list(self.interval),
+            fitted_strength=self.fitted_strength, strength_interval=list(self.interval),
         )  # fmt: skip
         return out
 
@@ -226,6 +250,79 @@ def candidate_result(
         float(np.mean([closure[r][i] for r in rungs])) if rungs else 0.0 for i in range(len(sets))
     ]
     return CandidateResult(name, stage, tuple(strengths), mmd2, closure, score)
+
+
+def _peak(u: np.ndarray, score: np.ndarray) -> float:
+    """Position of the maximum of a sampled curve.
+
+    The vertex of the parabola through the best sample and its two neighbours (clipped to
+    them), or the best sample when it lies at an end.
+    """
+    i = int(np.argmax(score))
+    if i == 0 or i == len(u) - 1:
+        return float(u[i])
+    a, b, _ = np.polyfit(u[i - 1 : i + 2], score[i - 1 : i + 2], 2)
+    if not a < 0:
+        return float(u[i])
+    return float(np.clip(-b / (2 * a), u[i - 1], u[i + 1]))
+
+
+def fit_strength(
+    result: CandidateResult,
+    sets: list[LadderFeatures],
+    sim: LadderFeatures,
+    real: LadderFeatures,
+    gaps: dict[str, Gap],
+    rungs: list[str],
+    *,
+    log_scale: bool,
+    n_boot: int,
+    rng: np.random.Generator,
+) -> CandidateResult:
+    """``result`` with a continuous strength fit and its group-bootstrap interval.
+
+    The fit is the peak of the score curve over the strengths tried (a parabola through the
+    best strength and its neighbours, in log strength when ``log_scale``). The interval is
+    the central 95 % of that peak over ``n_boot`` replicates that redraw R's videos and the
+    candidate's simulations by group (one draw shared by all strengths: they hold the same
+    simulations), each replicate re-scoring every strength with the rung's fixed kernel and
+    floor. A flat curve gives a wide interval: the data cannot pin the strength down.
+    Switches, choices and candidates with one strength are returned unchanged.
+    """
+    strengths = result.strengths
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in strengths)
+    if not numeric or len(strengths) < 2 or not rungs:
+        return result
+    values = np.asarray(strengths, dtype=np.float64)
+    if log_scale and not np.all(values > 0):
+        raise ValueError(f"{result.name}: log-scale strengths must be > 0, got {strengths}")
+    u = np.log(values) if log_scale else values
+    groups_x = np.unique(sets[0].groups)
+    shared = all(np.array_equal(np.unique(f.groups), groups_x) for f in sets)
+    draws_y = bootstrap_draws(len(np.unique(real.groups)), n_boot, rng)
+    draws_x = bootstrap_draws(len(groups_x), n_boot, rng) if shared else None
+    closed = np.zeros((len(rungs), len(sets), n_boot))
+    for r, rung in enumerate(rungs):
+        gap = gaps[rung]
+        floor = gap.floor_mmd2 if math.isfinite(gap.floor_mmd2) else 0.0
+        if gap.mmd2 <= floor:
+            continue
+        pooled = np.concatenate([sim.rungs[rung], real.rungs[rung]])
+        for i, features in enumerate(sets):
+            xs, ys = _scaled(pooled, features.rungs[rung], real.rungs[rung])
+            after = mmd2_replicates(xs, ys, features.groups, real.groups, gap.bandwidth,
+                                    draws_x, draws_y)  # fmt: skip
+            closed[r, i] = np.clip((gap.mmd2 - after) / (gap.mmd2 - floor), -1.0, 1.0)
+    curves = np.nan_to_num(closed.mean(axis=0), nan=-1.0)  # (strengths, replicates)
+    peaks = np.array([_peak(u, curves[:, b]) for b in range(n_boot)])
+    lo, hi = np.quantile(peaks, [(1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2])
+    fitted = _peak(u, np.asarray(result.score))
+    back = np.exp if log_scale else (lambda v: v)
+    return dataclasses.replace(
+        result,
+        fitted=float(f"{float(back(fitted)):.4g}"),
+        fit_interval=(float(f"{float(back(lo)):.4g}"), float(f"{float(back(hi)):.4g}")),
+    )
 
 
 def rank_candidates(results: list[CandidateResult], null: CandidateResult | None) -> dict:

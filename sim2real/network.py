@@ -5,17 +5,22 @@ pooled per frame, then averaged over the clip's frames), fc6 (averaged over fram
 LSTM's hidden state (mean over time and last step) and the logits. Layer names follow the
 data flow (``enc.block1`` ... ``enc.fc6``, ``lstm``, ``logits``), so "the first layer where
 the gap jumps" reads directly off the list.
+
+:func:`adapt_batchnorm` gives the counterfactual "the same network with its batch-norm
+statistics re-estimated on the real clips" (AdaBN, Li et al. 2018): what is left of a layer's
+gap after it is the part that a per-channel shift and scale cannot explain.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["layer_features", "layer_names", "tap_points"]
+__all__ = ["adapt_batchnorm", "clip_logits", "layer_features", "layer_names", "tap_points"]
 
 
 def _encoders(net: nn.Module) -> list[tuple[str, nn.Module]]:
@@ -65,6 +70,83 @@ def _summarise(output, kind: str, batch: int) -> torch.Tensor:
     return value.reshape(batch, -1, value.shape[-1]).mean(1)
 
 
+def _default_input(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(x).permute(0, 1, 4, 2, 3).float().div_(255.0)
+
+
+def _check_clips(clips) -> np.ndarray:
+    clips = np.asarray(clips)
+    if clips.dtype != np.uint8 or clips.ndim != 5 or clips.shape[-1] != 3:
+        raise ValueError(f"clips must be uint8 (N, T, H, W, 3), got {clips.dtype} {clips.shape}")
+    return clips
+
+
+@torch.no_grad()
+def adapt_batchnorm(
+    net: nn.Module,
+    clips: np.ndarray,
+    *,
+    batch_size: int = 16,
+    device: torch.device | str = "cpu",
+    to_input: Callable[[np.ndarray], torch.Tensor] | None = None,
+) -> nn.Module | None:
+    """A copy of ``net`` whose batch-norm running statistics are re-estimated on ``clips``.
+
+    Every ``BatchNorm`` layer's running mean and variance are reset and replaced by the
+    cumulative average over forward passes of ``clips`` (each layer in training mode, so it
+    normalises with the statistics of its own input, as AdaBN does); learned scales and
+    shifts, and every other weight, stay. ``net`` itself is not changed.
+
+    Args:
+        net: A video net taking ``(B, T, 3, H, W)`` in [0, 1].
+        clips: The target domain's frames, uint8, shape (N, T, H, W, 3), N >= 2.
+        batch_size: Clips per forward pass (>= 2: a batch of one has no variance).
+        device: Where to run.
+        to_input: uint8 clips -> the net's input (default: scale to [0, 1]).
+
+    Returns:
+        The adapted copy in eval mode, or ``None`` when ``net`` has no batch-norm layer.
+    """
+    clips = _check_clips(clips)
+    if len(clips) < 2 or batch_size < 2:
+        raise ValueError(f"adapt_batchnorm needs >= 2 clips and batch_size >= 2, got "
+                         f"{len(clips)} clips, batch_size {batch_size}")  # fmt: skip
+    adapted = copy.deepcopy(net).to(device).eval()
+    norms = [m for m in adapted.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    if not norms:
+        return None
+    for module in norms:
+        module.reset_running_stats()
+        module.momentum = None  # cumulative average over the passes
+        module.train()
+    to_input = to_input or _default_input
+    starts = list(range(0, len(clips), batch_size))
+    if len(clips) - starts[-1] < 2:  # a last batch of one clip: fold it into the one before
+        starts.pop()
+    for i, start in enumerate(starts):
+        stop = starts[i + 1] if i + 1 < len(starts) else len(clips)
+        adapted(to_input(clips[start:stop]).to(device))
+    return adapted.eval()
+
+
+@torch.no_grad()
+def clip_logits(
+    net: nn.Module,
+    clips: np.ndarray,
+    *,
+    batch_size: int = 16,
+    device: torch.device | str = "cpu",
+) -> np.ndarray:
+    """Class logits of ``net`` (eval mode) on uint8 clips (N, T, H, W, 3), float64 (N, C)."""
+    clips = _check_clips(clips)
+    net = net.to(device).eval()
+    out = [
+        net(_default_input(clips[start : start + batch_size]).to(device)).double().cpu()
+        for start in range(0, len(clips), batch_size)
+    ]
+    return torch.cat(out).numpy()
+
+
 @torch.no_grad()
 def layer_features(
     net: nn.Module,
@@ -86,12 +168,8 @@ def layer_features(
     Returns:
         ``{layer name: float64 (N, C_layer)}`` in data-flow order.
     """
-    clips = np.asarray(clips)
-    if clips.dtype != np.uint8 or clips.ndim != 5 or clips.shape[-1] != 3:
-        raise ValueError(f"clips must be uint8 (N, T, H, W, 3), got {clips.dtype} {clips.shape}")
-    to_input = to_input or (
-        lambda x: torch.from_numpy(x).permute(0, 1, 4, 2, 3).float().div_(255.0)
-    )
+    clips = _check_clips(clips)
+    to_input = to_input or _default_input
     net = net.to(device).eval()
     points = tap_points(net)
     store: dict[str, list[torch.Tensor]] = {name: [] for name, _, _ in points}

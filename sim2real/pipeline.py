@@ -9,6 +9,7 @@ is new; the report folder receives complete files only.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import logging
 import math
@@ -18,12 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from datasets.spec import DatasetSpec, check_int
-from simulator.material import CLASS_COUNT
+from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
 from simulator.threads import use_process_threads
 
 from .candidates import Candidate, candidate_library, select_candidates
+from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
 from .diagnosis import (
     candidate_result,
+    fit_strength,
     localise,
     probe_transfer,
     rank_candidates,
@@ -35,13 +38,17 @@ from .diagnosis import (
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
 from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
+from .network import adapt_batchnorm, layer_features
 from .report import contact_sheet, json_safe, write_report
 
 __all__ = [
     "Budget", "SetContext", "SetJob", "build_set", "load_run", "real_ladder", "run_diagnosis",
+    "spanning_classes",
 ]  # fmt: skip
 
 log = logging.getLogger(__name__)
+
+BEND_COUNT = len(BEND_MULTIPLIERS)
 
 SIM_SEED_OFFSET, SIM_SEED_STEP = 1000, 10_000
 """S's seeds: training seed + SIM_SEED_OFFSET + SIM_SEED_STEP x ``sim_seed`` (never trained on;
@@ -56,8 +63,10 @@ class Budget:
     """How much the diagnosis simulates and resamples (``configs/budget/``)."""
 
     name: str = "quick"
-    class_stride: int = 6
-    """Every n-th class of the training set enters S (the grid's corners and middle)."""
+    class_grid: tuple[int, int] | None = (3, 3)
+    """(stretch, bend) counts of the class sub-grid in S: evenly spaced grid indices from the
+    softest to the stiffest class, corners included (:func:`spanning_classes`); ``None``:
+    every training class."""
     sims_per_class: int = 2
     clips_per_sim: int = 3
     strengths: int = 3
@@ -76,13 +85,45 @@ class Budget:
     def __post_init__(self):
         if self.refine not in ("none", "visual", "all"):
             raise ValueError(f"budget.refine must be none, visual or all, got {self.refine!r}")
-        for name in ("class_stride", "sims_per_class", "clips_per_sim", "strengths", "n_floor"):
+        for name in ("sims_per_class", "clips_per_sim", "strengths", "n_floor"):
             check_int(f"budget.{name}", getattr(self, name))
+        if self.class_grid is not None:
+            if len(self.class_grid) != 2:
+                raise ValueError(f"budget.class_grid must be [stretch, bend] counts or null, "
+                                 f"got {self.class_grid!r}")  # fmt: skip
+            object.__setattr__(self, "class_grid", tuple(self.class_grid))
+            for count in self.class_grid:
+                check_int("budget.class_grid", count)
         check_int("budget.shapley_top", self.shapley_top, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
         if self.max_clips_per_video is not None:
             check_int("budget.max_clips_per_video", self.max_clips_per_video)
+
+
+def spanning_classes(classes, grid: tuple[int, int] | None) -> tuple[int, ...]:
+    """A sub-grid of ``classes`` that spans the stiffness range, corners included.
+
+    ``grid`` = (stretch count, bend count): that many evenly spaced stretch and bend indices
+    from the lowest to the highest present in ``classes``; each grid point takes the nearest
+    class of ``classes`` (duplicates dropped). Every n-th class would not do: with 9 bend
+    levels, a stride of 6 or 3 never reaches the stiffest bends, and S would move more than
+    any real set spanning the range, a gap that damping-like candidates would then "close".
+    """
+    classes = tuple(int(c) for c in classes)
+    if grid is None:
+        return classes
+    positions = np.array([divmod(c, BEND_COUNT) for c in classes], dtype=float)
+    axes = [
+        np.linspace(positions[:, k].min(), positions[:, k].max(), count)
+        for k, count in enumerate(grid)
+    ]
+    picked = []
+    for point in itertools.product(*axes):
+        nearest = classes[int(np.argmin(((positions - point) ** 2).sum(axis=1)))]
+        if nearest not in picked:
+            picked.append(nearest)
+    return tuple(sorted(picked))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -312,7 +353,7 @@ def run_diagnosis(
     if train_spec.camera.width != train_spec.camera.height:
         raise ValueError("the training data's frames are not square; real clips are square crops")
     spec = diagnosis_spec(
-        train_spec, classes=tuple(train_spec.classes[:: budget.class_stride]),
+        train_spec, classes=spanning_classes(train_spec.classes, budget.class_grid),
         sims_per_class=budget.sims_per_class, clips_per_sim=budget.clips_per_sim,
         seed_offset=SIM_SEED_OFFSET + SIM_SEED_STEP * check_int("sim_seed", sim_seed, low=0),
     )  # fmt: skip
@@ -394,7 +435,13 @@ def run_diagnosis(
         cached += more_cached
         plan = refined
     tick = time.perf_counter()
-    results = score(plan)
+    results = [
+        fit_strength(
+            result, [sets[_label(c, v)] for v in values], nominal, real_features, gaps, rungs,
+            log_scale=c.log_scale, n_boot=budget.n_boot, rng=np.random.default_rng([seed, 7, i]),
+        )
+        for i, (result, (c, values)) in enumerate(zip(score(plan), plan, strict=True))
+    ]  # fmt: skip
     null = candidate_result(
         "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs
     )
@@ -409,6 +456,12 @@ def run_diagnosis(
     jobs += extra
     cached += more_cached
     shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs)
+    swaps, built, built_cached = _stage_swaps(
+        spec, library, plan, sets, nominal, real, real_features, gaps, context, net,
+        budget=budget, n_jobs=n_jobs, progress=progress, timing=timing, seed=seed,
+    )  # fmt: skip
+    jobs += built
+    cached += built_cached
     timing["total"] = time.perf_counter() - start
 
     name = name or f"{real_dir.name}-{Path(run).name}"
@@ -433,6 +486,7 @@ def run_diagnosis(
         "null": null.to_json(),
         "ranking": ranking,
         "shapley": shapley,
+        "counterfactuals": swaps,
         "residual_stage": stage_of_residual(location),
         "probes": probes,
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
@@ -445,6 +499,80 @@ def run_diagnosis(
     contact_sheet(out_dir / "clips.png", sheet_rows, context.box)
     write_report(result, out_dir, extra_figures=("clips.png",))
     return result
+
+
+def _stage_swaps(
+    spec, library, plan, sets, nominal, real, real_features, gaps, context, net, *,
+    budget, n_jobs, progress, timing, seed,
+) -> tuple[dict, list[SetJob], int]:
+    """Counterfactuals (b) camera statistics of R emulated on S and (c) AdaBN on R.
+
+    Camera effects missing from the candidate plan are built here (re-renders only).
+    Returns the result entry, the sets it needed beyond the candidates' and how many of
+    those came from the cache.
+    """
+    tick = time.perf_counter()
+    planned = {c.name: values for c, values in plan}
+    camera = [
+        (c, planned.get(c.name) or c.strengths(budget.strengths))
+        for c in library.values() if c.stage == "camera" and not c.binary and not c.choices
+    ]  # fmt: skip
+    built = [j for j in _candidate_jobs(spec, camera) if j.label not in sets]
+    more, cached = _run_jobs(built, context, n_jobs, progress, timing)
+    sets.update(more)
+    rng = np.random.default_rng([seed, 11])
+    rivals = {c.name: [sets[_label(c, v)] for v in values] for c, values in plan}
+    signatures = camera_signatures(
+        nominal,
+        {c.name: (values, [sets[_label(c, v)] for v in values], c.neutral) for c, values in camera},
+        rivals, rng=rng,
+    )  # fmt: skip
+    matched = match_camera(signatures, real_features, nominal, rng=rng)
+    present = [(library[n], m["strength"]) for n, m in matched.items() if m["present"]]
+    camera_entry = {"matched": matched, "set": None, "rungs": None}
+    if present:
+        members = [(c, round(v) if c.integer else float(f"{v:.4g}")) for c, v in present]
+        label = "camera-swap:" + "+".join(c.label(v) for c, v in members)
+        swapped = spec
+        for candidate, value in members:
+            swapped = candidate.apply(swapped, value)
+        job = SetJob(label, swapped)
+        more, hit = _run_jobs([job], context, n_jobs, progress, timing)
+        built.append(job)
+        cached += hit
+        camera_entry["set"] = label
+        camera_entry["rungs"] = swap_closure(nominal, real_features, gaps, sim_after=more[label],
+                                             rng=rng)  # fmt: skip
+    adapted_features = _adapted_real(real, real_features, context, net)
+    entry = {
+        "camera": camera_entry,
+        "batchnorm": batchnorm_swap(nominal, real_features, adapted_features, gaps, rng=rng),
+    }
+    timing["counterfactuals"] = time.perf_counter() - tick
+    return entry, built, cached
+
+
+def _adapted_real(real, real_features: LadderFeatures, context: SetContext, net):
+    """R's layers through the network with batch-norm statistics re-estimated on R (cached)."""
+    key = content_key(kind="real-adabn", real=_real_digest_of(real), net=context.checkpoint_digest,
+                      box=list(context.box))  # fmt: skip
+    path = _cache_path(context, key)
+    if path.is_file():
+        return LadderFeatures.load(path)
+    adapted = adapt_batchnorm(net, real.frames, device=context.device)
+    if adapted is None:
+        return None
+    layers = layer_features(adapted, real.frames, device=context.device)
+    features = dataclasses.replace(real_features, rungs={**real_features.rungs, **layers})
+    features.save(path)
+    return features
+
+
+def _real_digest_of(real) -> str:
+    """Content hash of a real clip set's frames and groups."""
+    digest = hashlib.sha256(np.ascontiguousarray(real.frames).tobytes())
+    digest.update("\n".join(real.groups.tolist()).encode())
+    return digest.hexdigest()[:20]
 
 
 def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
@@ -519,7 +647,7 @@ def _refine(plan: list[tuple], results: list, mode: str) -> list[tuple]:
             out.append((candidate, values))
             continue
         best = results[i].best
-        log = candidate.low > 0 and candidate.high / candidate.low > 4
+        log = candidate.log_scale
         extra = []
         for j in (best - 1, best + 1):
             if 0 <= j < len(values):

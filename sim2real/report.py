@@ -66,6 +66,7 @@ def verdict(result: dict) -> str:
             f"In the network it first appears at {loc['first_significant_layer']}; the largest "
             f"rise is at {loc['jump_layer']}."
         )
+    parts += _swap_sentences(result)
     if ranking["explained"]:
         top = result["candidates"][ranking["top"]]
         strength = top["best_strength"]
@@ -103,6 +104,36 @@ def verdict(result: dict) -> str:
     return " ".join(parts)
 
 
+def _swap_sentences(result: dict) -> list[str]:
+    """The verdict's words on the counterfactual stage swaps (empty when there are none)."""
+    swaps = result.get("counterfactuals")
+    if not swaps:
+        return []
+    out = []
+    shown = list(result["location"]["significant"])
+    camera = swaps["camera"]
+    if camera["rungs"]:
+        closed = ", ".join(f"{100 * camera['rungs'][r]['closure']:.0f} % on {r}" for r in shown
+                           if r in camera["rungs"])  # fmt: skip
+        out.append(f"Emulating R's measured camera statistics on S "
+                   f"({camera['set'].split(':', 1)[1]}) closes {closed}.")  # fmt: skip
+    else:
+        out.append("R's camera statistics (noise, blur, compression, frame rate, shake, colour "
+                   "cast) match S's.")  # fmt: skip
+    norm = swaps["batchnorm"]
+    layer = result["location"]["first_significant_layer"]
+    if norm.get("available") and layer in norm["layers"]:
+        text = (f"Re-estimating the network's batch-norm statistics on R closes "
+                f"{100 * norm['layers'][layer]['closure']:.0f} % at {layer}")  # fmt: skip
+        corr = norm.get("correlations", {}).get("material_score~stiffness")
+        if corr:
+            after = norm["correlations"]["after"]["material_score~stiffness"]
+            text += (f"; the material score's Spearman ρ with measured stiffness goes "
+                     f"{_fmt(corr['spearman'], 2)} -> {_fmt(after['spearman'], 2)}")  # fmt: skip
+        out.append(text + ".")
+    return out
+
+
 def _shapley_lines(shapley: dict | None) -> list[str]:
     if not shapley:
         return []
@@ -114,6 +145,30 @@ def _shapley_lines(shapley: dict | None) -> list[str]:
         "together):",
         "",
         markdown_table(["candidate / coalition", "Shapley value / closure"], rows),
+    ]
+
+
+def _predictivity_lines(srcc: dict | None) -> list[str]:
+    """Sim-to-real predictivity (SRCC) before and after, with the per-checkpoint scores."""
+    if not srcc:
+        return []
+
+    def cell(entry):
+        if entry["srcc"] is None:
+            return f"– ({entry['checkpoints']} checkpoints)"
+        ci = "" if entry["ci"] is None else f" {_ci(entry['ci'])}"
+        return f"{_fmt(entry['srcc'], 2)}{ci} ({entry['checkpoints']} checkpoints)"
+
+    rows = [[Path(r["checkpoint"]).parent.parent.name + "/" + Path(r["checkpoint"]).name,
+             _fmt(r["sim"], 2), _fmt(r["sim_effect"], 2), _fmt(r["real"], 2)]
+            for r in srcc["rows"]]  # fmt: skip
+    return [
+        "Sim-to-real predictivity (SRCC, Kadian et al. 2020): across checkpoints, Spearman "
+        "of the score on simulated clips with the score on R (each score: ρ of the material "
+        f"score with stiffness). Nominal simulator: {cell(srcc['before'])}; with the effect: "
+        f"{cell(srcc['after'])}.",
+        "",
+        markdown_table(["checkpoint", "ρ on S", "ρ on S + effect", "ρ on R"], rows),
     ]
 
 
@@ -144,6 +199,7 @@ def _shrink_section(shrink: dict | None) -> list[str]:
         f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
         f"fine-tuned for {shrink['epochs']} epochs from the run's weights.",
         "",
+        *_predictivity_lines(shrink.get("predictivity")),
         markdown_table(["measured", "r", "before", "95 % CI", "after", "95 % CI"], rows),
         markdown_table(
             [
@@ -198,6 +254,74 @@ def _candidate_rows(result: dict) -> list[list]:
     return rows
 
 
+def _closure_table(first: str, rungs: dict) -> str:
+    """A swap's gap per rung before and after (:func:`sim2real.counterfactuals.swap_closure`)."""
+    return markdown_table(
+        [first, "MMD² before", "after", "closed", "corrected AUC before", "after"],
+        [[r, _fmt(v["mmd2_before"]), _fmt(v["mmd2_after"]), f"{100 * v['closure']:.0f} %",
+          _fmt(v["corrected_auc_before"], 2), _fmt(v["corrected_auc_after"], 2)]
+         for r, v in rungs.items()],
+    )  # fmt: skip
+
+
+def _swap_lines(swaps: dict | None) -> list[str]:
+    """Section 1's counterfactual stage swaps: camera of R on S, AdaBN on R."""
+    if not swaps:
+        return []
+    lines = ["### Counterfactual stage swaps", ""]
+    camera = swaps["camera"]
+    rows = [
+        [name, m["statistic"] or "none found", _fmt(m.get("nominal")), _fmt(m.get("real")),
+         _fmt(m.get("z"), 2), "yes" if m["present"] else "no", _fmt(m["strength"])]
+        for name, m in camera["matched"].items()
+    ]  # fmt: skip
+    lines += [
+        "**Camera of R emulated on S.** Each camera effect's signature statistic (the clip "
+        "statistic it moves most and the other camera effects least) measured on S and R; an "
+        "effect counts as present when R differs from S by >= 3 standard errors in the "
+        "effect's direction, and its strength is read off its sets.",
+        "",
+        markdown_table(["effect", "signature", "S", "R", "z", "present", "strength"], rows),
+    ]
+    if camera["rungs"]:
+        lines += [
+            f"S with {camera['set'].split(':', 1)[1]} vs R:",
+            "",
+            _closure_table("rung", camera["rungs"]),
+        ]
+    else:
+        lines += ["R's camera statistics match S's: nothing to emulate.", ""]
+    norm = swaps["batchnorm"]
+    if not norm["available"]:
+        return [*lines, f"**Batch-norm statistics re-estimated on R:** {norm['reason']}.", ""]
+    lines += [
+        "**Batch-norm statistics re-estimated on R (AdaBN).** The share of each layer's gap "
+        "that a per-channel shift and scale explain:",
+        "",
+        _closure_table("layer", norm["layers"]),
+    ]
+    if "correlations" in norm:
+        rows = []
+        for key, before in norm["correlations"]["before"].items():
+            after = norm["correlations"]["after"][key]
+            score, target = key.split("~")
+            rows.append([
+                score, target, _fmt(before["spearman"], 2),
+                "–" if before["spearman_ci"] is None else _ci(before["spearman_ci"]),
+                _fmt(after["spearman"], 2),
+                "–" if after["spearman_ci"] is None else _ci(after["spearman_ci"]),
+            ])  # fmt: skip
+        lines += [
+            "The model's scores on R (per video) against the measured values, Spearman ρ "
+            "before and after AdaBN:",
+            "",
+            markdown_table(
+                ["score", "measured", "ρ before", "95 % CI", "ρ after", "95 % CI"], rows
+            ),
+        ]
+    return lines
+
+
 def _markdown(result: dict, figures: list[str]) -> str:
     lines = [f"# Sim-to-real diagnosis: {result['name']}", "", verdict(result), ""]
     info = result["inputs"]
@@ -215,6 +339,7 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "permutations; probes: ridge of the class position trained on S, Spearman ρ of the "
         "per-video prediction with the measured values on R.",
         "",
+        *_swap_lines(result.get("counterfactuals")),
         "## 2. Which unmodelled effect",
         "",
         f"Scored rungs: {', '.join(result['scored_rungs']) or 'none'}. Score = mean fraction "

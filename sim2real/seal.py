@@ -54,16 +54,36 @@ _SEAL_STREAM = 7
 
 
 def _draw_strength(candidate: Candidate, rng: np.random.Generator):
+    """A strength in the half of the plausible range away from the effect's neutral value.
+
+    Effects whose off state lies below the range are drawn in its upper half, those whose
+    neutral value lies above it (a JPEG quality of 100) in its lower half; where the neutral
+    value lies inside the range (a scene field's nominal value, a frame-rate ratio of 1), a
+    side is picked and the strength is drawn in that side's outer half. Log-uniform on
+    ranges over a factor 4, else uniform. The weaker halves are left out on purpose: there an
+    effect is often too weak to leave a significant gap in 90 videos at all (measured in
+    the smoke validation), so a set would test the detection limit, not the attribution.
+    """
     if candidate.choices:
         options = [c for c in candidate.choices if c != candidate.default]
         return options[int(rng.integers(len(options)))]
     if candidate.low is None:
         return None
-    low, high = candidate.low, candidate.high
-    if low > 0 and high / low > 4:
-        value = math.exp(rng.uniform(math.log(low), math.log(high)))
+    scale = np.log if candidate.log_scale else (lambda v: v)
+    back = math.exp if candidate.log_scale else (lambda v: v)
+    low, high = float(scale(candidate.low)), float(scale(candidate.high))
+    neutral = candidate.neutral
+    if neutral is None or neutral <= candidate.low:
+        low = 0.5 * (low + high)
+    elif neutral >= candidate.high:
+        high = 0.5 * (low + high)
     else:
-        value = rng.uniform(low, high)
+        middle = float(scale(neutral))
+        if rng.uniform() < 0.5:
+            high = 0.5 * (low + middle)
+        else:
+            low = 0.5 * (middle + high)
+    value = back(rng.uniform(low, high))
     return round(value) if candidate.integer else float(f"{value:.4g}")
 
 
@@ -148,6 +168,7 @@ def seal_set(
     answer: dict | None = None,
     answer_path: str | Path | None = None,
     overwrite: bool = False,
+    density_range: tuple[float, float] = (0.8, 1.25),
 ) -> tuple[Path, str]:
     """Write sealed set ``seed`` into ``out``; returns (answer file, its sha256).
 
@@ -162,6 +183,8 @@ def seal_set(
         answer: A given answer instead of a drawn one (tests plant a known effect).
         answer_path: Where the answer goes (default: ``<out>.answer.json``).
         overwrite: Replace an existing ``out``.
+        density_range: Areal density factors on the basis fabric's, drawn uniformly
+            (``(1, 1)``: every video at the training data's density).
     """
     from datasets.generation import render_frames
     from render.capsules import sequence_capsules
@@ -174,13 +197,17 @@ def seal_set(
     answer_path = Path(answer_path) if answer_path else out.with_name(out.name + ".answer.json")
     if out.exists() and not overwrite:
         raise ValueError(f"out: {out} exists; choose another folder or pass --overwrite")
+    answer_path.parent.mkdir(parents=True, exist_ok=True)
     library = candidate_library(base)
     answer = answer or draw_answer(seed, library, kind)
     rng = np.random.default_rng([seed, _SEAL_STREAM, 1])
     spec, nuisance = _sealed_spec(base, answer, rng)
     p = np.exp(rng.uniform(*np.log([min(STRETCH_MULTIPLIERS), max(STRETCH_MULTIPLIERS)]), videos))
     k = np.exp(rng.uniform(*np.log([min(BEND_MULTIPLIERS), max(BEND_MULTIPLIERS)]), videos))
-    density_factor = rng.uniform(0.8, 1.25, videos)
+    low, high = density_range
+    if not 0 < low <= high:
+        raise ValueError(f"density_range must be 0 < low <= high, got {density_range}")
+    density_factor = rng.uniform(low, high, videos)
     basis = load_wang_material(BASIS_MATERIAL)
     sim_seeds = [int(s) for s in rng.integers(1, 2**31 - 1, size=videos)]
     winds = [i % len(spec.scenario.wind_speeds) if hasattr(spec.scenario, "wind_speeds") else 0
@@ -269,12 +296,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--kind", choices=SEAL_KINDS, help="default: drawn from the seed")
     parser.add_argument("--answer", help="answer file (default: <out>.answer.json)")
     parser.add_argument("--overwrite", action="store_true")
+    parser.add_argument("--density-range", type=float, nargs=2, default=(0.8, 1.25),
+                        metavar=("LOW", "HIGH"), help="areal density factors drawn per video")
     args = parser.parse_args(argv)
     try:
         path, digest = seal_set(
             args.out, base=_base_spec(args.data_dir, args.level), seed=args.seed,
             videos=args.videos, clips_per_video=args.clips_per_video, kind=args.kind,
             answer_path=args.answer, overwrite=args.overwrite,
+            density_range=tuple(args.density_range),
         )  # fmt: skip
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -1,6 +1,6 @@
 """How far the gap shrinks: retrain with the identified effect, measure before and after.
 
-``python -m sim2real.shrink --report outputs/sim2real/<name> [--epochs 5] [--preset small]``
+``python -m sim2real.shrink --report outputs/sim2real/<name> [--epochs 8] [--preset small]``
 reads a diagnosis (``report.json``), regenerates the training data of its run with the top
 effect(s) at the fitted strength (``datasets.generation``, same scene, seeds and settings;
 ``--effects name=strength,...`` overrides the choice), fine-tunes the run's model on it from
@@ -8,7 +8,9 @@ its weights (``train.train`` with the run's own config, ``init_from`` = its chec
 reports on the real set: Pearson and Spearman of the material score with measured stiffness
 and density before vs after, with bootstrap intervals (``models.evaluate.evaluate_real``),
 and, per rung, the floor-corrected gap before (S vs R, old network) and after (S_e vs R, new
-network) beside the closure section 2 predicted. The diagnosis report is rewritten with a
+network) beside the closure section 2 predicted, and the sim-to-real predictivity (SRCC,
+:mod:`sim2real.predictivity`) over the run's checkpoints and every fine-tuned epoch, with
+the nominal simulator and with the effect added. The diagnosis report is rewritten with a
 section 3.
 """
 
@@ -24,9 +26,10 @@ from datasets.spec import PRESETS, DatasetSpec
 
 from .candidates import candidate_library
 from .diagnosis import rung_gaps
-from .domains import real_clips
+from .domains import real_clips, simulated_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import SetContext, SetJob, build_set, load_run, real_ladder
+from .predictivity import predictivity
 from .report import json_safe, write_report
 
 __all__ = ["chosen_effects", "shrink"]
@@ -83,6 +86,14 @@ def _fine_tune(run: Path, data_dir: Path, checkpoint: Path, out: Path, epochs: i
     }.items():  # fmt: skip
         OmegaConf.update(cfg, key, value, force_add=True)
     OmegaConf.update(cfg, "data.data_dirs", [str(data_dir)], force_add=True)
+    snapshots = {  # one checkpoint per epoch: the models whose ranking section 3 compares
+        "_target_": "lightning.pytorch.callbacks.ModelCheckpoint",
+        "dirpath": str(out / "checkpoints"), "filename": "epoch{epoch:02d}", "monitor": None,
+        "save_top_k": -1, "every_n_epochs": 1, "auto_insert_metric_name": False,
+        "enable_version_counter": False,
+        "mode": "max",  # unused without a monitor; tells its state key from last.ckpt's
+    }  # fmt: skip
+    OmegaConf.update(cfg, "callbacks.epoch_snapshots", snapshots, force_add=True)
     try:
         from train import train
     except ImportError:
@@ -109,7 +120,7 @@ def _correlations(module, real_dir, out, spec: DatasetSpec, clip_len, clip_strid
 def shrink(
     report_dir: str | Path,
     *,
-    epochs: int = 5,
+    epochs: int = 8,
     preset: str = "small",
     effects: str | None = None,
     n_jobs: int = 2,
@@ -164,6 +175,16 @@ def shrink(
         sim_after, real_after, n_perm=budget["n_perm"], n_boot=budget["n_boot"],
         n_floor=budget["n_floor"], seed=seed,
     )  # fmt: skip
+    # Sim-to-real predictivity over the run's checkpoints and the fine-tuned epochs.
+    checkpoints = [checkpoint, *[p for p in (run / "checkpoints" / "last.ckpt",)
+                                 if p.is_file() and p != checkpoint]]  # fmt: skip
+    checkpoints += sorted((out / "train" / "checkpoints").glob("epoch*.ckpt"))
+    cut = {"clip_len": clip_len, "clip_stride": clip_stride}
+    srcc = predictivity(
+        checkpoints, simulated_clips(nominal, inputs["mesh_cache"], **cut),
+        simulated_clips(_apply(nominal, chosen), inputs["mesh_cache"], **cut), clips,
+        device=inputs["device"], seed=seed,
+    )  # fmt: skip
     top = chosen[0][0]
     predicted = result["candidates"].get(top)
     rungs = {}
@@ -183,6 +204,7 @@ def shrink(
         "preset": preset, "epochs": epochs, "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
         "correlations": {"before": before, "after": after}, "rungs": rungs,
+        "predictivity": srcc,
     }  # fmt: skip
     result["shrink"] = json_safe(section)
     write_report(result, report_dir, extra_figures=("clips.png",))
@@ -194,7 +216,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m sim2real.shrink",
                                      description=__doc__.split("\n")[0])  # fmt: skip
     parser.add_argument("--report", required=True, help="a diagnosis folder (its report.json)")
-    parser.add_argument("--epochs", type=int, default=5)
+    parser.add_argument(
+        "--epochs", type=int, default=8,
+        help="fine-tuning epochs; each epoch's checkpoint joins the predictivity (SRCC) set",
+    )  # fmt: skip
     parser.add_argument(
         "--preset",
         default="small",

@@ -319,6 +319,53 @@ def _mmd2_group_bootstrap(
     )
 
 
+def mmd2_replicates(
+    x: np.ndarray,
+    y: np.ndarray,
+    gx: np.ndarray,
+    gy: np.ndarray,
+    bandwidth: float,
+    draws_x: np.ndarray | None,
+    draws_y: np.ndarray,
+) -> np.ndarray:
+    """Group-bootstrap replicates of the unbiased RBF MMD² for given group draws.
+
+    The caller draws (:func:`bootstrap_draws`) and can share one draw between several
+    comparisons, e.g. between the sets of one candidate at several strengths, which hold the
+    same simulations: their replicates then differ only by the strength.
+
+    Args:
+        x: First sample, shape (n, d).
+        y: Second sample, shape (m, d).
+        gx: Group id per row of x, shape (n,); codes follow ``np.unique`` order.
+        gy: Group id per row of y, shape (m,).
+        bandwidth: RBF bandwidth > 0.
+        draws_x: Times each x group is drawn, shape (Gx, B); ``None`` keeps x as it is.
+        draws_y: Times each y group is drawn, shape (Gy, B).
+
+    Returns:
+        MMD² per replicate, shape (B,).
+    """
+    x, y = _check_pair(x, y)
+    cx, gx_count = _group_codes(gx, x.shape[0], "gx")
+    cy, gy_count = _group_codes(gy, y.shape[0], "gy")
+    if draws_x is None:
+        draws_x = np.ones((gx_count, draws_y.shape[1]), dtype=np.int64)
+    if draws_x.shape[0] != gx_count or draws_y.shape[0] != gy_count:
+        raise ValueError(
+            f"draws must have one row per group: x {draws_x.shape[0]} vs {gx_count}, "
+            f"y {draws_y.shape[0]} vs {gy_count}"
+        )
+    kxx, kyy, kxy = _rbf(x, x, bandwidth), _rbf(y, y, bandwidth), _rbf(x, y, bandwidth)
+    return _mmd2_group_bootstrap(kxx, kyy, kxy, cx, cy, draws_x, draws_y)
+
+
+def bootstrap_draws(group_count: int, n_boot: int, rng: np.random.Generator) -> np.ndarray:
+    """Times each of ``group_count`` groups is drawn in each of ``n_boot`` replicates, (G, B)."""
+    _check_rng(rng)
+    return _bootstrap_draws(group_count, n_boot, rng)
+
+
 # ---------------------------------------------------------------------------- AUC, classifier
 
 

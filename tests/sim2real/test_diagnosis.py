@@ -7,6 +7,7 @@ import pytest
 
 from sim2real.diagnosis import (
     candidate_result,
+    fit_strength,
     localise,
     probe_transfer,
     rank_candidates,
@@ -103,6 +104,35 @@ def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
     assert wrong.best_score < 0.3 and physics.best_score < 0.3
     assert ranking["stage_scores"]["camera"] == right.best_score
     assert right.interval[0] <= 1.5 <= right.interval[1]
+
+
+def test_the_strength_fit_lands_between_grid_points_with_an_interval_that_covers_it(planted):
+    sim, real, gaps = planted
+    rungs = scored_rungs(localise(gaps))
+    sizes = (0.5, 1.0, 2.0, 3.0)  # the planted 1.5 lies between two grid points
+    sets = [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes]
+    result = candidate_result("visual.right", "camera", sizes, sets, sim, real, gaps, rungs)
+    fitted = fit_strength(result, sets, sim, real, gaps, rungs, log_scale=False, n_boot=200,
+                          rng=np.random.default_rng(0))  # fmt: skip
+    lo, hi = fitted.interval
+    assert lo <= 1.5 <= hi
+    assert 1.0 < fitted.fitted_strength < 2.0
+    assert fitted.best_strength in (1.0, 2.0)  # the grid point it was built at stays known
+    assert hi - lo < 2.0
+    # the same in log strength
+    logged = fit_strength(result, sets, sim, real, gaps, rungs, log_scale=True, n_boot=200,
+                          rng=np.random.default_rng(0))  # fmt: skip
+    assert logged.interval[0] <= 1.5 <= logged.interval[1]
+    # an effect that changes nothing: fresh draws of S, a flat noisy curve, a wide interval
+    wrong = [_domain(20 + i) for i in range(len(sizes))]
+    flat = candidate_result("visual.wrong", "camera", sizes, wrong, sim, real, gaps, rungs)
+    flat = fit_strength(flat, wrong, sim, real, gaps, rungs, log_scale=False, n_boot=200,
+                        rng=np.random.default_rng(0))  # fmt: skip
+    assert flat.interval[1] - flat.interval[0] > hi - lo
+    # switches pass through unchanged
+    switch = candidate_result("physics.s", "physics", (None,), sets[:1], sim, real, gaps, rungs)
+    assert fit_strength(switch, sets[:1], sim, real, gaps, rungs, log_scale=False, n_boot=50,
+                        rng=np.random.default_rng(0)) is switch  # fmt: skip
 
 
 def test_an_effect_outside_the_library_gives_the_open_set_answer(planted):

@@ -31,7 +31,7 @@ NET = {
     "hidden_size": 16,
 }  # fmt: skip
 BUDGET = Budget(
-    name="test", class_stride=1, sims_per_class=2, clips_per_sim=2, strengths=3,
+    name="test", class_grid=None, sims_per_class=2, clips_per_sim=2, strengths=3,
     max_clips_per_video=None, n_perm=99, n_boot=99, n_floor=5,
 )  # fmt: skip
 CANDIDATES = ["visual.sensor_noise", "visual.defocus_blur", "visual.white_balance"]
@@ -138,9 +138,24 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert saved["ranking"]["top"] == "visual.sensor_noise"
     assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
 
-    # one more candidate: only its sets are built, everything else comes from the cache
+    # counterfactual (b): the sealed set's sensor noise is measured and emulated on S
+    camera = result["counterfactuals"]["camera"]
+    noise_match = camera["matched"]["visual.sensor_noise"]
+    assert noise_match["present"] and "noise" in noise_match["statistic"]
+    assert camera["rungs"]["pixel"]["closure"] > 0.5
+    # counterfactual (c): AdaBN on R for every layer of the net (it has batch norm)
+    norm = result["counterfactuals"]["batchnorm"]
+    assert norm["available"] and "enc.block1" in norm["layers"]
+    assert "material_score~stiffness" in norm["correlations"]["after"]
+    report = (out / "report.md").read_text()
+    assert "Counterfactual stage swaps" in report and "AdaBN" in report
+
+    # one more candidate: only its sets are built, everything else comes from the cache (the
+    # camera swap already built the camera effects at the budget's strengths)
     again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"])
-    new_sets = len(again["candidates"]["visual.compression"]["strengths"])
+    library = candidate_library(_spec())
+    grid = set(library["visual.compression"].strengths(BUDGET.strengths))
+    new_sets = len(set(again["candidates"]["visual.compression"]["strengths"]) - grid)
     new_sets += len(set(again["shapley"]["coalitions"]) - set(result["shapley"]["coalitions"]))
     assert again["sets"]["built"] == new_sets
     assert again["sets"]["cached"] == again["sets"]["total"] - 1 - new_sets
@@ -259,7 +274,7 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     out = tmp_path / "report"
     result = _diagnose(world, out, candidates=["visual.sensor_noise"], run=run, data_dir=None)
     assert result["ranking"]["top"] == "visual.sensor_noise"
-    section = shrink(out, epochs=1, preset="same", n_jobs=1)
+    section = shrink(out, epochs=2, preset="same", n_jobs=1)
     assert section["effects"][0]["name"] == "visual.sensor_noise"
     for label in ("before", "after"):
         for target in ("stiffness", "density"):
@@ -267,6 +282,14 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
             assert entry["count"] == 8
     assert set(section["rungs"]) == set(result["rungs"])
     assert section["rungs"]["pixel"]["closure_predicted"] > 0.5
+    # predictivity over the run's best and last checkpoints and both fine-tuned epochs
+    srcc = section["predictivity"]
+    assert [Path(r["checkpoint"]).name for r in srcc["rows"]] == [
+        "best.ckpt", "last.ckpt", "epoch00.ckpt", "epoch01.ckpt",
+    ]  # fmt: skip
+    assert all(-1 <= r[k] <= 1 for r in srcc["rows"] for k in ("sim", "sim_effect", "real"))
+    assert srcc["before"]["checkpoints"] == srcc["after"]["checkpoints"] == 4
     text = (out / "report.md").read_text()
-    assert "## 3. How far it shrinks" in text and "fine-tuned for 1 epochs" in text
-    assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 1
+    assert "## 3. How far it shrinks" in text and "fine-tuned for 2 epochs" in text
+    assert "SRCC" in text
+    assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2

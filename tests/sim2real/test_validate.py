@@ -71,3 +71,27 @@ def test_kendall_tau_of_identical_and_reversed_rankings():
     order = ["a", "b", "c", "d"]
     assert ranking_stability([order, order, order]) == pytest.approx(1.0)
     assert ranking_stability([order, order[::-1]]) == pytest.approx(-1.0)
+
+
+def test_weighted_tau_counts_swaps_at_the_top_more_than_at_the_bottom():
+    order = list("abcdefgh")
+    top_swap = ["b", "a", *order[2:]]
+    bottom_swap = [*order[:-2], "h", "g"]
+    assert ranking_stability([order, top_swap]) == pytest.approx(
+        ranking_stability([order, bottom_swap])
+    )
+    assert ranking_stability([order, bottom_swap], weighted=True) > ranking_stability(
+        [order, top_swap], weighted=True
+    )
+    assert ranking_stability([order, order], weighted=True) == pytest.approx(1.0)
+
+
+def test_the_summary_counts_detection_and_top1_where_a_gap_was_found():
+    hit = score_set(_result("visual.sensor_noise") | {"scored_rungs": ["pixel"]},
+                    _answer("visual.sensor_noise"))  # fmt: skip
+    missed = score_set(_result("visual.sensor_noise", explained=False) | {"scored_rungs": []},
+                       _answer("visual.sensor_noise"))  # fmt: skip
+    summary = summarise([hit, missed])
+    assert summary["detected"] == 0.5 and summary["detected_n"] == 2
+    assert summary["top1_detected"] == 1.0 and summary["top1_detected_n"] == 1
+    assert summary["top1"] == 0.5
