@@ -12,13 +12,15 @@ multirun over ``worker.index`` with the submitit launcher, see the README).
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
 import logging
 import multiprocessing
 import os
 import shutil
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +29,7 @@ from render.backgrounds import make_background
 from render.capsules import sequence_capsules
 from render.textures import make_texture
 from simulator.errors import InputError
-from simulator.material import ClothMaterial
+from simulator.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
 from simulator.rollout import simulate
 from simulator.sequence import MeshSequence
 from simulator.threads import torch_threads
@@ -76,14 +78,22 @@ def simulate_unit(
     cache_dir: Path | None,
     *,
     on_step: Callable[[int, int], None] | None = None,
+    multipliers: tuple[Sequence[float], Sequence[float]] | None = None,
 ) -> MeshSequence:
     """The unit's mesh sequence: from the cache when present, else simulated (and cached).
 
     ``on_step(step, total)`` follows the rollout (see :func:`simulator.rollout.simulate`).
+    ``multipliers`` = (stretch, bend) per simulation of the basis fabric, instead of the
+    simulations' classes (the sim-to-real diagnosis draws continuous materials); they are
+    part of the cache key.
     """
     path = None
     if cache_dir is not None:
-        path = Path(cache_dir) / spec.physics_key() / f"{unit.name}.npz"
+        folder = spec.physics_key()
+        if multipliers is not None:
+            text = json.dumps([[float(v) for v in m] for m in multipliers])
+            folder += "-m" + hashlib.sha256(text.encode()).hexdigest()[:12]
+        path = Path(cache_dir) / folder / f"{unit.name}.npz"
         if path.is_file():
             try:
                 seq = MeshSequence.load(path)
@@ -92,9 +102,16 @@ def simulate_unit(
             except (OSError, ValueError, KeyError) as err:
                 log.warning("ignoring unreadable mesh cache %s (%s)", path, err)
     classes = [s.class_id for s in unit.sims]
+    if multipliers is None:
+        material = ClothMaterial.from_classes(classes)
+    else:
+        material = ClothMaterial.from_wang(
+            load_wang_material(BASIS_MATERIAL), stretch_mult=list(multipliers[0]),
+            bend_mult=list(multipliers[1]),
+        )  # fmt: skip
     seq = simulate(
         spec.scenario,
-        ClothMaterial.from_classes(classes),
+        material,
         seeds=[s.seed for s in unit.sims],
         wind_levels=[s.wind_level for s in unit.sims],
         fps=spec.preset.fps,

@@ -122,7 +122,9 @@ def camera_signatures(
     error, at least :data:`SCALE_FLOOR` of the statistic's spread over all sets. The
     signature is the statistic with the largest specificity z_ej / (1 + max z_e'j over every
     other effect e', the ``rivals`` included) among those with z_ej >=
-    :data:`MIN_SIGNATURE_Z`; an effect that moves no statistic that far has none. Rivals from
+    :data:`MIN_SIGNATURE_Z`, leaving out features that never vary over S's clips (a clean
+    render's clipped-black share: any real background would move it); an effect that moves
+    no statistic that far has none. Rivals from
     other stages (physics, scene, appearance) keep a statistic that the cloth's motion also
     moves from standing for a camera effect.
 
@@ -148,11 +150,15 @@ def camera_signatures(
     spread = np.concatenate([nominal[None], *curves.values()]).std(axis=0)
     se = np.maximum(_bootstrap_se(sim, rng), SCALE_FLOOR * spread + 1e-12)
     z = {e: np.abs(c - nominal).max(axis=0) / se for e, c in curves.items()}
+    features = np.concatenate([sim.rungs[r] for r in PIXEL_RUNGS], axis=1)
+    usable = np.tile(features.std(axis=0) > 0, 2)  # a feature S never varies is no signature
     out = {}
     for effect, (strengths, _, neutral) in effect_sets.items():
         others = [z[o] for o in z if o != effect]
         rival = np.max(others, axis=0) if others else np.zeros_like(z[effect])
-        specificity = np.where(z[effect] >= MIN_SIGNATURE_Z, z[effect] / (1.0 + rival), -np.inf)
+        specificity = np.where(
+            usable & (z[effect] >= MIN_SIGNATURE_Z), z[effect] / (1.0 + rival), -np.inf
+        )
         j = int(np.argmax(specificity))
         found = math.isfinite(specificity[j])
         out[effect] = {
@@ -197,6 +203,14 @@ def _invert(strengths: list, values: list, nominal: float, target: float, neutra
     return float(np.clip(value, min(strengths), max(strengths)))
 
 
+def _weakest_value(sig: dict) -> float:
+    """The signature's value at the effect's weakest strength tried (nearest its neutral)."""
+    strengths = np.asarray(sig["strengths"], dtype=float)
+    neutral = sig["neutral"]
+    i = int(np.argmin(strengths if neutral is None else np.abs(np.log(strengths / neutral))))
+    return float(sig["values"][i])
+
+
 def match_camera(
     signatures: dict[str, dict],
     real: LadderFeatures,
@@ -208,8 +222,10 @@ def match_camera(
 
     An effect counts as present when R's signature value differs from S's by at least
     :data:`MIN_SIGNATURE_Z` combined standard errors (group bootstrap of R's videos and S's
-    simulations) in a direction the effect moves it; its strength is then read off the
-    effect's curve (:func:`_invert`).
+    simulations) in a direction the effect moves it, and by at least half as much as the
+    effect's weakest plausible strength moves it (closer to S, the effect even at its
+    weakest would overshoot R: a sensor's shot noise alone is several levels); its strength
+    is then read off the effect's curve (:func:`_invert`).
 
     Returns:
         Effect name -> ``{"statistic", "real", "nominal", "z", "present", "strength"}``.
@@ -225,7 +241,12 @@ def match_camera(
         value, nominal = float(real_stats[j]), sig["nominal"]
         z = (value - nominal) / math.hypot(sig["nominal_se"], float(real_se[j]))
         directions = set(np.sign(np.subtract(sig["values"], nominal)).tolist())
-        present = abs(z) >= MIN_SIGNATURE_Z and np.sign(value - nominal) in directions
+        weakest = _weakest_value(sig)
+        present = (
+            abs(z) >= MIN_SIGNATURE_Z
+            and np.sign(value - nominal) in directions
+            and abs(value - nominal) >= 0.5 * abs(weakest - nominal)
+        )
         strength = (
             _invert(sig["strengths"], sig["values"], nominal, value, sig["neutral"])
             if present else None

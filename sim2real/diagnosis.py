@@ -116,13 +116,16 @@ def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
     """Which rungs carry a significant gap, and the network layer where it jumps.
 
     A rung is significant when its group-permutation p-value is below ``alpha`` /
-    (number of rungs) (Bonferroni) and its MMD² exceeds the noise floor. The jump layer is
+    (number of rungs) (Bonferroni) and its MMD² exceeds the noise floor; ``supported`` lists
+    the rungs that pass at ``alpha`` itself (evidence once a gap is established). The jump
+    layer is
     the network layer with the largest rise of the floor-corrected domain AUC over the rung
     before it (the first layer's predecessor is the pixel rung).
     """
     names = list(gaps)
     threshold = alpha / max(1, len(names))
     significant = [n for n in names if gaps[n].p_value < threshold and gaps[n].corrected_mmd2 > 0]
+    supported = [n for n in names if gaps[n].p_value < alpha and gaps[n].corrected_mmd2 > 0]
     layers = [n for n in names if n not in PIXEL_RUNGS]
     first_layer = next((n for n in layers if n in significant), None)
     jump, rise = None, -math.inf
@@ -138,6 +141,7 @@ def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
         "alpha": alpha,
         "threshold": threshold,
         "significant": significant,
+        "supported": supported,
         "first_significant_layer": first_layer,
         "jump_layer": jump,
         "jump_rise": None if jump is None else rise,
@@ -147,10 +151,16 @@ def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
 def scored_rungs(location: dict) -> list[str]:
     """Rungs a candidate is scored on.
 
-    Pixel and motion when significant, plus the first significant network layer (one layer
-    stands for the net: its layers are strongly correlated).
+    None unless some rung is significant (the family-wise test decides whether there is a
+    gap at all); then pixel and motion where they pass at the uncorrected level (once there
+    is a gap, every rung that shows it helps to tell the candidates apart: a physical effect
+    often moves the motion rung just below the Bonferroni level), plus the first significant
+    network layer (one layer stands for the net: its layers are strongly correlated).
     """
-    rungs = [n for n in PIXEL_RUNGS if n in location["significant"]]
+    if not location["significant"]:
+        return []
+    supported = location.get("supported", location["significant"])
+    rungs = [n for n in PIXEL_RUNGS if n in supported]
     if location["first_significant_layer"] is not None:
         rungs.append(location["first_significant_layer"])
     return rungs

@@ -7,7 +7,8 @@ scene candidate re-simulates. Each simulation is rendered as one video (image ef
 as a frame-rate change act on the whole video, as a camera would) and cut into clips exactly
 as :class:`datasets.real_video.RealVideoDataset` cuts a real video: ``clip_len`` frames every
 ``clip_stride`` frames at the preset's frame rate. Groups (for every resampling in the
-statistics) are simulations in S and videos in R.
+statistics) are simulations in S and videos in R. Simulated cloths take continuous materials
+from the training span (:func:`prior_materials`), labelled with the nearest class.
 """
 
 from __future__ import annotations
@@ -17,15 +18,16 @@ import dataclasses
 import numpy as np
 
 from datasets.generation import render_frames, simulate_unit
-from datasets.plan import plan_units
+from datasets.plan import WorkUnit, plan_units
 from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
 from render.capsules import sequence_capsules
 from simulator.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
 
-__all__ = ["ClipSet", "diagnosis_spec", "real_clips", "simulated_clips"]
+__all__ = ["ClipSet", "diagnosis_spec", "prior_materials", "real_clips", "simulated_clips"]
 
 _VIDEO_STREAM = 3  # the generator's clip stream; clip 0 of a simulation = its video
+_MATERIAL_STREAM = 11
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,6 +96,30 @@ def diagnosis_spec(
     )
 
 
+def prior_materials(spec: DatasetSpec, unit: WorkUnit) -> tuple[np.ndarray, np.ndarray]:
+    """Stretch and bend multipliers (p, k) of the unit's simulations, drawn from the prior.
+
+    The prior is log-uniform over the span of the training classes' multipliers, one draw
+    per simulation from its seed alone (so S and every S_e hold the same cloths). The
+    training classes are a grid over that span; a diagnosis set drawn from a grid is a
+    lumpy distribution that no real set of fabrics spread over the span matches, and the
+    difference shows up on the motion rung as a gap that damping-like candidates "close"
+    (measured on a sealed set with no effect at all).
+    """
+    multipliers = np.log([multipliers_from_class(c) for c in spec.classes])
+    low, high = multipliers.min(axis=0), multipliers.max(axis=0)
+    draws = np.array([
+        np.random.default_rng([s.seed, _MATERIAL_STREAM]).uniform(low, high) for s in unit.sims
+    ])  # fmt: skip
+    return np.exp(draws[:, 0]), np.exp(draws[:, 1])
+
+
+def _nearest_class(spec: DatasetSpec, p: float, k: float) -> int:
+    """The training class whose multipliers lie nearest (p, k) in log space."""
+    grid = np.log([multipliers_from_class(c) for c in spec.classes])
+    return int(spec.classes[int(np.argmin(((grid - np.log([p, k])) ** 2).sum(axis=1)))])
+
+
 def simulated_clips(
     spec: DatasetSpec,
     mesh_cache,
@@ -117,8 +143,9 @@ def simulated_clips(
     basis_density = load_wang_material(BASIS_MATERIAL).density
     rows: dict[str, list] = {k: [] for k in ("frames", "coverage", "groups", "class_id", "k")}
     for unit in plan_units(spec):
-        seq = simulate_unit(spec, unit, mesh_cache)  # cached by physics key: a visual
-        # candidate re-renders the nominal meshes
+        p, k = prior_materials(spec, unit)
+        seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k))  # cached by physics
+        # key and materials: a visual candidate re-renders the nominal meshes
         capsules = sequence_capsules(seq)
         start, stop = spec.lead_in_frames, spec.frames_per_sim
         for b, sim in enumerate(unit.sims):
@@ -130,8 +157,8 @@ def simulated_clips(
                 rows["frames"].append(frames[first : first + clip_len])
                 rows["coverage"].append(coverage[first : first + clip_len])
                 rows["groups"].append(sim.sim_id)
-                rows["class_id"].append(sim.class_id)
-                rows["k"].append(multipliers_from_class(sim.class_id)[1])
+                rows["class_id"].append(_nearest_class(spec, p[b], k[b]))
+                rows["k"].append(k[b])
     if not rows["frames"]:
         raise ValueError(
             f"the simulated videos ({spec.frames_per_sim - spec.lead_in_frames} frames) are "

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from datasets.runs import find_run
 from datasets.spec import DatasetSpec, check_int
 from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
 from simulator.threads import use_process_threads
@@ -64,21 +65,26 @@ class Budget:
 
     name: str = "quick"
     class_grid: tuple[int, int] | None = (3, 3)
-    """(stretch, bend) counts of the class sub-grid in S: evenly spaced grid indices from the
-    softest to the stiffest class, corners included (:func:`spanning_classes`); ``None``:
-    every training class."""
-    sims_per_class: int = 2
+    """(stretch, bend) counts of the class sub-grid whose simulations make S
+    (:func:`spanning_classes`; ``None``: every training class). With ``sims_per_class`` it
+    sets how many simulations S holds; each draws its own continuous material over the
+    training span (:func:`sim2real.domains.prior_materials`)."""
+    sims_per_class: int = 3
     clips_per_sim: int = 3
+    """Clips per simulation in S, and the first this many clips of each real video in R: both
+    domains cover the same time after the wind starts. (A cloth's motion changes over its
+    first seconds; cut longer, R held a later clip that S never had, which made a significant
+    motion gap on a sealed set with no effect at all, and damping-like candidates "closed"
+    it.)"""
     strengths: int = 3
     """Strengths tried per candidate with a strength parameter."""
-    max_clips_per_video: int | None = 4
     n_perm: int = 200
     n_boot: int = 200
     n_floor: int = 10
     shapley_top: int = 3
     """Candidates (best first, closing some of the gap) whose coalitions get Shapley values;
     0 = none. Costs 2^n - n - 1 more sets."""
-    refine: str = "visual"
+    refine: str = "all"
     """Densify the strength grid around the best strength of the top candidates: ``none``,
     ``visual`` (re-rendered candidates only: no simulation) or ``all``."""
 
@@ -97,8 +103,6 @@ class Budget:
         check_int("budget.shapley_top", self.shapley_top, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
-        if self.max_clips_per_video is not None:
-            check_int("budget.max_clips_per_video", self.max_clips_per_video)
 
 
 def spanning_classes(classes, grid: tuple[int, int] | None) -> tuple[int, ...]:
@@ -107,8 +111,7 @@ def spanning_classes(classes, grid: tuple[int, int] | None) -> tuple[int, ...]:
     ``grid`` = (stretch count, bend count): that many evenly spaced stretch and bend indices
     from the lowest to the highest present in ``classes``; each grid point takes the nearest
     class of ``classes`` (duplicates dropped). Every n-th class would not do: with 9 bend
-    levels, a stride of 6 or 3 never reaches the stiffest bends, and S would move more than
-    any real set spanning the range, a gap that damping-like candidates would then "close".
+    levels, a stride of 6 or 3 never reaches the stiffest bends.
     """
     classes = tuple(int(c) for c in classes)
     if grid is None:
@@ -151,48 +154,10 @@ class SetContext:
 def load_run(run: str | Path, data_dir: str | Path | None = None) -> tuple[DatasetSpec, Path]:
     """The training data's spec and the checkpoint of a training run.
 
-    Args:
-        run: A run folder (``logs/train/<run>``: ``checkpoints/best.ckpt`` or ``last.ckpt``
-            and ``.hydra/config.yaml``) or a checkpoint file.
-        data_dir: The training dataset folder (its ``spec.json``); default: the run's
-            ``data.data_dirs[0]``.
+    See :func:`datasets.runs.find_run` (errors name ``run`` or ``data_dir``).
     """
-    run = Path(run)
-    if run.is_file():
-        checkpoint, folder = run, run.parent.parent
-    elif run.is_dir():
-        folder = run
-        found = [run / "checkpoints" / n for n in ("best.ckpt", "last.ckpt")]
-        checkpoint = next((p for p in found if p.is_file()), None)
-        if checkpoint is None:
-            raise FileNotFoundError(f"run: {run} has no checkpoints/best.ckpt or last.ckpt")
-    else:
-        raise FileNotFoundError(f"run: {run} is neither a run folder nor a checkpoint file")
-    if data_dir is None:
-        config = folder / ".hydra" / "config.yaml"
-        if not config.is_file():
-            raise FileNotFoundError(
-                f"run: {folder} has no .hydra/config.yaml (the training config that names its "
-                "dataset); pass data_dir=<the training dataset folder>"
-            )
-        from omegaconf import OmegaConf
-
-        try:
-            dirs = OmegaConf.to_container(OmegaConf.load(config).data.data_dirs, resolve=True)
-        except Exception as err:  # any config problem gets the same advice
-            raise ValueError(
-                f"run: cannot read data.data_dirs from {config} ({err}); pass data_dir=..."
-            ) from None
-        data_dir = dirs[0]
-    spec_path = Path(data_dir) / "spec.json"
-    if not spec_path.is_file():
-        raise FileNotFoundError(
-            f"data_dir: {spec_path} not found (the training dataset's spec, written by "
-            "datasets.generate); pass data_dir=<the training dataset folder>"
-        )
-    from datasets.manifest import read_json
-
-    return DatasetSpec.from_json(read_json(spec_path)["spec"]), checkpoint
+    trained = find_run(run, data_dir)
+    return trained.spec, trained.checkpoint
 
 
 def _load_net(checkpoint: str, device: str):
@@ -363,7 +328,7 @@ def run_diagnosis(
     # Real clips first: a bad real folder fails before any simulation.
     real = real_clips(
         real_dir, size=spec.camera.height, clip_len=clip_len, clip_stride=clip_stride,
-        fps=spec.preset.fps, max_clips_per_video=budget.max_clips_per_video,
+        fps=spec.preset.fps, max_clips_per_video=budget.clips_per_sim,
     )  # fmt: skip
     _check_real_labels(real)
     if real.group_count < 4:
@@ -388,7 +353,7 @@ def run_diagnosis(
 
     tick = time.perf_counter()
     real_features = real_ladder(real_dir, real, context, fps=spec.preset.fps,
-                                max_clips=budget.max_clips_per_video)  # fmt: skip
+                                max_clips=budget.clips_per_sim)  # fmt: skip
     nominal_path = _cache_path(context, _sim_key(SetJob("S", spec), context))
     if nominal_path.is_file():
         nominal = LadderFeatures.load(nominal_path)

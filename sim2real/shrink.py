@@ -168,9 +168,9 @@ def shrink(
     budget = inputs["budget_settings"]
     clips = real_clips(real_dir, size=nominal.camera.height, clip_len=clip_len,
                        clip_stride=clip_stride, fps=nominal.preset.fps,
-                       max_clips_per_video=budget["max_clips_per_video"])  # fmt: skip
+                       max_clips_per_video=budget["clips_per_sim"])  # fmt: skip
     real_after = real_ladder(real_dir, clips, context, fps=nominal.preset.fps,
-                             max_clips=budget["max_clips_per_video"])  # fmt: skip
+                             max_clips=budget["clips_per_sim"])  # fmt: skip
     gaps_after = rung_gaps(
         sim_after, real_after, n_perm=budget["n_perm"], n_boot=budget["n_boot"],
         n_floor=budget["n_floor"], seed=seed,

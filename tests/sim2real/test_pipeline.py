@@ -32,7 +32,7 @@ NET = {
 }  # fmt: skip
 BUDGET = Budget(
     name="test", class_grid=None, sims_per_class=2, clips_per_sim=2, strengths=3,
-    max_clips_per_video=None, n_perm=99, n_boot=99, n_floor=5,
+    n_perm=99, n_boot=99, n_floor=5,
 )  # fmt: skip
 CANDIDATES = ["visual.sensor_noise", "visual.defocus_blur", "visual.white_balance"]
 
