@@ -285,7 +285,7 @@ class RealVideoDataset(Dataset):
         header = list(rows[0].fields)
         labels = root / "labels.csv"
         groups, self.group_column, self.group_rule = _groups(rows, header, group, labels)
-        self.videos = [self._probe(row, g) for row, g in zip(rows, groups, strict=True)]
+        self.videos = [self.probe(row, g) for row, g in zip(rows, groups, strict=True)]
         by_path: dict[Path, int] = {}
         for row, video in zip(rows, self.videos, strict=True):
             first = by_path.setdefault(video.path.resolve(), row.line)
@@ -328,7 +328,8 @@ class RealVideoDataset(Dataset):
         """Listed videos too short for one clip."""
         return len(self.skipped)
 
-    def _probe(self, row: LabelRow, group: str) -> _Video:
+    def probe(self, row: LabelRow, group: str) -> _Video:
+        """One listed video: its path, frame count, frame rate and measured values."""
         labels = self.root / "labels.csv"
         path = _resolve(self.root, row)
         if path.is_dir():

@@ -1,7 +1,8 @@
 """Every argparse command prints its help and exits on ``--help``, before doing any work.
 
-The Hydra entry points (simulator.simulate, datasets.generate, datasets.demo, train.py,
-simulator.tools.tissue, sim2real.diagnose, models.evaluate) get ``--help`` from Hydra itself.
+The Hydra entry points (simulator.simulate, datasets.generate, datasets.demo, datasets.clone,
+train.py, simulator.tools.tissue, sim2real.diagnose, models.evaluate) get ``--help`` from Hydra
+itself.
 """
 
 import importlib
@@ -12,8 +13,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 HYDRA = {
-    "simulator.simulate", "datasets.generate", "datasets.demo", "simulator.tools.tissue",
-    "sim2real.diagnose", "models.evaluate",
+    "simulator.simulate", "datasets.generate", "datasets.demo", "datasets.clone",
+    "simulator.tools.tissue", "sim2real.diagnose", "models.evaluate",
 }  # fmt: skip
 
 COMMANDS = [
