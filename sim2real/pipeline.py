@@ -31,6 +31,7 @@ from .diagnosis import (
     localise,
     probe_transfer,
     rank_candidates,
+    reference_aucs,
     rung_gaps,
     scored_rungs,
     shapley_values,
@@ -367,6 +368,7 @@ def run_diagnosis(
                      n_floor=budget.n_floor, seed=seed)  # fmt: skip
     location = localise(gaps, alpha=alpha)
     rungs = scored_rungs(location)
+    before = reference_aucs(nominal, real_features, rungs)
     timing["fit"] = time.perf_counter() - tick
 
     jobs = [SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))]
@@ -384,6 +386,7 @@ def run_diagnosis(
                 real_features,
                 gaps,
                 rungs,
+                before,
             )
             for c, values in plan
         ]
@@ -408,7 +411,7 @@ def run_diagnosis(
         for i, (result, (c, values)) in enumerate(zip(score(plan), plan, strict=True))
     ]  # fmt: skip
     null = candidate_result(
-        "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs
+        "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs, before
     )
     ranking = rank_candidates(results, null)
     probes = probe_transfer(nominal, real_features)
@@ -420,7 +423,8 @@ def run_diagnosis(
     sets.update(more)
     jobs += extra
     cached += more_cached
-    shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs)
+    shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs, before)
+    ranking = _explained_together(ranking, shapley)
     swaps, built, built_cached = _stage_swaps(
         spec, library, plan, sets, nominal, real, real_features, gaps, context, net,
         budget=budget, n_jobs=n_jobs, progress=progress, timing=timing, seed=seed,
@@ -447,6 +451,7 @@ def run_diagnosis(
         "rungs": {n: g.to_json() for n, g in gaps.items()},
         "location": location,
         "scored_rungs": rungs,
+        "reference_auc": before,
         "candidates": {r.name: {**r.to_json(), "best": r.best} for r in results},
         "null": null.to_json(),
         "ranking": ranking,
@@ -540,6 +545,25 @@ def _real_digest_of(real) -> str:
     return digest.hexdigest()[:20]
 
 
+def _explained_together(ranking: dict, shapley: dict | None) -> dict:
+    """The ranking, explained by the top candidate's best coalition when it alone is not.
+
+    Two effects at once (a sealed pair, a real camera with two faults) each close only part
+    of the gap; when a coalition holding the top candidate reaches the open-set threshold,
+    the gap is explained by it (``explained_by``), the top candidate named first.
+    """
+    if ranking["explained"] or not shapley or ranking["top"] is None:
+        return ranking
+    holding = {k: v for k, v in shapley["coalitions"].items() if ranking["top"] in k.split("+")}
+    if not holding:
+        return ranking
+    best = max(holding, key=holding.get)
+    if holding[best] < ranking["threshold"]:
+        return ranking
+    return {**ranking, "explained": True, "explained_by": best.split("+"),
+            "explained_by_score": holding[best]}  # fmt: skip
+
+
 def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
     """Label -> spec builder of every coalition (2 or more) of the ``top`` best candidates.
 
@@ -562,7 +586,7 @@ def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
     return out
 
 
-def _shapley(coalitions, results, sets, nominal, real, gaps, rungs) -> dict | None:
+def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> dict | None:
     """Shapley values of the top candidates from the coalition sets (``None``: < 2 players)."""
     if not coalitions:
         return None
@@ -573,7 +597,7 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs) -> dict | No
     for label in coalitions:
         names = label.split(":", 1)[1].split("+")
         scored = candidate_result(label, "coalition", (None,), [sets[label]], nominal, real,
-                                  gaps, rungs)  # fmt: skip
+                                  gaps, rungs, before)  # fmt: skip
         value[frozenset(names)] = scored.best_score
     values = shapley_values(players, value)
     return {

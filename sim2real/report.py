@@ -53,14 +53,15 @@ def verdict(result: dict) -> str:
     gaps = result["rungs"]
     if not loc["significant"]:
         return (
-            "No rung shows a gap beyond the within-domain noise floor at the chosen level "
-            f"(Bonferroni-corrected alpha {loc['threshold']:.3g}): the simulated and real clips "
-            "are not distinguishable with this budget."
+            "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
+            f"combined: p {_fmt(loc.get('gap_p'), 2)}, alpha {loc['alpha']:g}): the simulated "
+            "and real clips are not distinguishable with this budget."
         )
     rung_text = ", ".join(
         f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc["significant"]
     )
-    parts = [f"The gap is significant on {rung_text}."]
+    parts = [f"There is a gap (all rungs' tests combined: p {_fmt(loc.get('gap_p'), 2)}); "
+             f"it shows on {rung_text}."]  # fmt: skip
     if loc["first_significant_layer"]:
         parts.append(
             f"In the network it first appears at {loc['first_significant_layer']}; the largest "
@@ -77,6 +78,12 @@ def verdict(result: dict) -> str:
             f"scored rungs (threshold {100 * ranking['threshold']:.0f} %, a fresh nominal draw "
             f"closes {100 * ranking['null_score']:.0f} %)."
         )
+        if ranking.get("explained_by"):
+            parts.append(
+                "Alone it closes less than the threshold; together with "
+                + ", ".join(n for n in ranking["explained_by"] if n != ranking["top"])
+                + f" it closes {100 * ranking['explained_by_score']:.0f} %."
+            )
         if ranking["confusable_with_top"]:
             parts.append(
                 "It cannot be told apart from " + ", ".join(ranking["confusable_with_top"]) + "."
@@ -221,14 +228,17 @@ def _rung_rows(result: dict) -> list[list]:
         rows.append([
             name, _fmt(gap["mmd2"]), _ci(gap["mmd2_ci"]), _fmt(gap["floor_mmd2"]),
             _fmt(gap["auc"], 2), _ci(gap["auc_ci"]), _fmt(gap["floor_auc"], 2),
-            _fmt(gap["p_value"], 2), "yes" if name in result["location"]["significant"] else "",
+            _fmt(gap["p_value"], 2), _fmt(gap.get("p_c2st"), 2),
+            "yes" if name in result["location"]["significant"] else "",
+            "yes" if name in result["location"].get("bonferroni", ()) else "",
             _fmt(probe.get("stiffness_spearman"), 2), _fmt(probe.get("density_spearman"), 2),
         ])  # fmt: skip
     return rows
 
 
 _RUNG_HEADER = [
-    "rung", "MMD²", "95 % CI", "floor", "AUC", "95 % CI", "floor AUC", "p", "significant",
+    "rung", "MMD²", "95 % CI", "floor", "AUC", "95 % CI", "floor AUC", "p (MMD²)", "p (C2ST)",
+    "shows the gap", "on its own",
     "probe ρ stiffness", "probe ρ density",
 ]  # fmt: skip
 
@@ -239,7 +249,8 @@ def _candidate_rows(result: dict) -> list[list]:
     for rank, name in enumerate(result["ranking"]["ranking"], 1):
         entry = result["candidates"][name]
         best = entry["best"] if "best" in entry else int(np.argmax(entry["score"]))
-        closes = [f"{100 * entry['closure'][r][best]:.0f} %" for r in rungs]
+        closure = entry.get("closure_auc") or entry["closure"]
+        closes = [f"{100 * closure[r][best]:.0f} %" for r in rungs]
         lo, hi = entry["strength_interval"]
         rows.append([
             rank, name, entry["stage"], _fmt(entry["best_strength"]),
@@ -248,7 +259,8 @@ def _candidate_rows(result: dict) -> list[list]:
         ])  # fmt: skip
     null = result.get("null")
     if null is not None:
-        closes = [f"{100 * null['closure'][r][0]:.0f} %" for r in rungs]
+        closure = null.get("closure_auc") or null["closure"]
+        closes = [f"{100 * closure[r][0]:.0f} %" for r in rungs]
         rows.append(["–", "S' (fresh nominal draw)", "null", "", "",
                      f"{100 * null['best_score']:.0f} %", *closes])  # fmt: skip
     return rows
@@ -335,15 +347,20 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "",
         markdown_table(_RUNG_HEADER, _rung_rows(result)),
         "MMD² on features standardised with S and R pooled; floors are the values expected "
-        "from group sampling alone (S vs S' split by simulation, R vs R' by video); p from group "
-        "permutations; probes: ridge of the class position trained on S, Spearman ρ of the "
-        "per-video prediction with the measured values on R.",
+        "from group sampling alone (S vs S' split by simulation, R vs R' by video); p (MMD²) from "
+        "group permutations, p (C2ST) a one-sided Mann-Whitney test of the classifier's "
+        "out-of-fold scores per group. The gap test combines all of them (harmonic mean "
+        "p-value); given a gap, a rung shows it when twice its smaller p is below alpha, and "
+        "stands on its own when that passes the Bonferroni level over the rungs; probes: ridge "
+        "of the class position trained on S, Spearman ρ of the per-video prediction with the "
+        "measured values on R.",
         "",
         *_swap_lines(result.get("counterfactuals")),
         "## 2. Which unmodelled effect",
         "",
         f"Scored rungs: {', '.join(result['scored_rungs']) or 'none'}. Score = mean fraction "
-        "of the floor-corrected gap closed at the fitted strength.",
+        "of the floor-corrected domain-classifier AUC that S_e closes at the fitted strength "
+        "(AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor).",
         "",
         markdown_table(
             [

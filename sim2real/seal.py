@@ -87,8 +87,14 @@ def _draw_strength(candidate: Candidate, rng: np.random.Generator):
     return round(value) if candidate.integer else float(f"{value:.4g}")
 
 
-def draw_answer(seed: int, library: dict[str, Candidate], kind: str | None = None) -> dict:
-    """The withheld effect(s) of sealed set ``seed`` (and its kind) drawn from the seed."""
+def draw_answer(
+    seed: int, library: dict[str, Candidate], kind: str | None = None, effect: str | None = None
+) -> dict:
+    """The withheld effect(s) of sealed set ``seed`` (and its kind) drawn from the seed.
+
+    ``effect`` fixes the library effect of a ``single`` set (its strength is still drawn), so
+    that a validation can cover every switch.
+    """
     rng = np.random.default_rng([seed, _SEAL_STREAM])
     drawn_kind = SEAL_KINDS[int(rng.choice(len(SEAL_KINDS), p=_KIND_WEIGHTS))]
     kind = kind or drawn_kind
@@ -105,6 +111,11 @@ def draw_answer(seed: int, library: dict[str, Candidate], kind: str | None = Non
     else:
         count = 1 if kind == "single" else 2
         picked = rng.choice(len(names), size=count, replace=False)
+        if effect is not None:
+            if kind != "single" or effect not in library:
+                raise ValueError(f"effect: {effect!r} must be a library effect of a single set; "
+                                 f"allowed: {names}")  # fmt: skip
+            picked = [names.index(effect)]
         for i in sorted(int(p) for p in picked):
             candidate = library[names[i]]
             effects.append({

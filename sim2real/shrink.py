@@ -196,8 +196,10 @@ def shrink(
             realised = (before_auc - after_auc) / before_auc
         entry = {"corrected_auc_before": before_auc, "corrected_auc_after": after_auc,
                  "closure_realised": realised}  # fmt: skip
-        if predicted is not None and name in predicted["closure"]:
-            entry["closure_predicted"] = predicted["closure"][name][predicted["best"]]
+        if predicted is not None:  # the classifier closure where scored, else the MMD² one
+            source = {**predicted["closure"], **(predicted.get("closure_auc") or {})}
+            if name in source:
+                entry["closure_predicted"] = source[name][predicted["best"]]
         rungs[name] = entry
     section = {
         "effects": [{"name": n, "strength": s} for n, s in chosen],

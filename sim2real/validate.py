@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .candidates import candidate_library
 from .pipeline import Budget, load_run, run_diagnosis
-from .seal import seal_set
+from .seal import SEAL_KINDS, draw_answer, seal_set
 
-__all__ = ["ranking_stability", "score_set", "summarise"]
+__all__ = ["ranking_stability", "score_set", "set_plan", "summarise"]
 
 TARGETS = {
     "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
@@ -177,6 +178,27 @@ def _table(summary: dict, rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def set_plan(kinds: str | None, names: list[str], first_seed: int) -> list[tuple] | None:
+    """(seed, kind, fixed effect) per set of a plan like ``single:20,pair:6,open:4``.
+
+    Singles take the library's effects in turn (``names`` order), so a plan with at least as
+    many singles as effects covers every switch; pairs and open-set sets draw theirs from the
+    seed. Seeds run from ``first_seed`` in plan order. ``None`` without a plan.
+    """
+    if not kinds:
+        return None
+    plan, seed = [], first_seed
+    for part in kinds.split(","):
+        kind, _, count = part.partition(":")
+        if kind not in SEAL_KINDS or not count.isdigit():
+            raise ValueError(f"kinds: {part!r} must be <kind>:<count> with kind in {SEAL_KINDS}")
+        for i in range(int(count)):
+            effect = names[i % len(names)] if kind == "single" else None
+            plan.append((seed, kind, effect))
+            seed += 1
+    return plan
+
+
 def _diagnosed(out_dir: Path, common: dict) -> dict:
     """The diagnosis of one sealed set: its finished report, else a fresh run.
 
@@ -197,6 +219,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data-dir", help="the run's training dataset folder")
     parser.add_argument("--out", default="outputs/sim2real/validation")
     parser.add_argument("--first-seed", type=int, default=1000)
+    parser.add_argument(
+        "--kinds",
+        help="a fixed plan, e.g. single:20,pair:6,open:4 (singles cycle through the library "
+        "in name order, so 20 cover every effect); default: each set's kind drawn from its "
+        "seed. With a plan, --sets counts its sets: 0 means all of them",
+    )  # fmt: skip
+    parser.add_argument("--skip", type=int, default=0,
+                        help="leave out the plan's first SKIP sets (shard a plan over processes)")
     parser.add_argument("--videos", type=int, default=90)
     parser.add_argument("--candidates", default="all", help="comma-separated names or stages")
     parser.add_argument("--mesh-cache", default="data/mesh_cache")
@@ -219,15 +249,26 @@ def main(argv: list[str] | None = None) -> None:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
+    library = candidate_library(base)
+    try:
+        plan = set_plan(args.kinds, sorted(library), args.first_seed)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    if plan is None:
+        plan = [(seed, None, None) for seed in range(args.first_seed, args.first_seed + args.sets)]
+    else:
+        plan = plan[args.skip :][: args.sets or None]
     rows = []
-    for seed in range(args.first_seed, args.first_seed + args.sets):
+    for seed, kind, effect in plan:
         start = time.perf_counter()
         real = out / "sets" / f"set{seed}"
         answer_path = out / "answers" / f"set{seed}.json"
         answer_path.parent.mkdir(parents=True, exist_ok=True)
         if not (real / "labels.csv").is_file() or not answer_path.is_file():
+            answer = None if kind is None else draw_answer(seed, library, kind, effect)
             seal_set(real, base=base, seed=seed, videos=args.videos, answer_path=answer_path,
-                     overwrite=True)  # fmt: skip
+                     overwrite=True, answer=answer)  # fmt: skip
         common = {
             "real_dir": real, "run": args.run, "data_dir": args.data_dir,
             "cache_dir": Path(args.cache_dir) if args.cache_dir else out / "cache",

@@ -190,3 +190,22 @@ def test_shapley_values_split_additive_and_joint_gains():
     values = shapley_values(players, joint)
     assert values == pytest.approx({"a": 0.3, "b": 0.3, "c": 0.1})
     assert sum(values.values()) == pytest.approx(joint[frozenset("abc")])  # efficiency
+
+
+def test_the_harmonic_mean_p_holds_its_level_on_dependent_tests_and_pools_weak_evidence():
+    from scipy import stats
+
+    from sim2real.diagnosis import harmonic_mean_p
+
+    rng = np.random.default_rng(0)
+    shared = rng.normal(size=(4000, 1))
+    z = 0.8 * shared + 0.6 * rng.normal(size=(4000, 20))  # correlated tests, like the rungs
+    p_values = stats.norm.sf(z)
+    rejected = np.mean([harmonic_mean_p(row) < 0.05 for row in p_values])
+    assert rejected < 0.06
+    # several weak signals: no single test passes Bonferroni, together they do
+    weak = [0.006, 0.006, 0.01, 0.018, 0.03] + [0.5] * 15
+    assert min(weak) * len(weak) > 0.05
+    assert harmonic_mean_p(weak) < 0.05
+    assert harmonic_mean_p([1.0] * 20) > 0.5
+    assert harmonic_mean_p([float("nan"), 0.5]) == harmonic_mean_p([0.5])

@@ -95,3 +95,33 @@ def test_the_summary_counts_detection_and_top1_where_a_gap_was_found():
     assert summary["detected"] == 0.5 and summary["detected_n"] == 2
     assert summary["top1_detected"] == 1.0 and summary["top1_detected_n"] == 1
     assert summary["top1"] == 0.5
+
+
+def test_a_plan_cycles_singles_through_the_library_and_numbers_seeds_in_order():
+    from sim2real.validate import set_plan
+
+    names = ["a", "b", "c"]
+    plan = set_plan("single:4,pair:2,open:1", names, 100)
+    assert [p[0] for p in plan] == list(range(100, 107))
+    assert [p[1:] for p in plan[:4]] == [("single", "a"), ("single", "b"), ("single", "c"),
+                                         ("single", "a")]  # fmt: skip
+    assert plan[4:] == [(104, "pair", None), (105, "pair", None), (106, "open", None)]
+    assert set_plan(None, names, 1) is None
+    with pytest.raises(ValueError, match="kinds"):
+        set_plan("double:2", names, 1)
+
+
+def test_a_fixed_single_effect_keeps_a_drawn_strength():
+    from datasets.spec import PRESETS, DatasetSpec
+    from sim2real.candidates import candidate_library
+    from sim2real.seal import draw_answer
+    from simulator.scenario import ScenarioWind
+
+    library = candidate_library(
+        DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=PRESETS["small"])
+    )
+    answer = draw_answer(7, library, "single", "visual.sensor_noise")
+    (effect,) = answer["effects"]
+    assert effect["name"] == "visual.sensor_noise" and 2.0 <= effect["strength"] <= 8.0  # upper half in log
+    with pytest.raises(ValueError, match="effect"):
+        draw_answer(7, library, "pair", "visual.sensor_noise")
