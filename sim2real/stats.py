@@ -655,13 +655,9 @@ def domain_auc(
     Raises:
         ValueError: If either domain has fewer than 2 groups.
     """
-    _check_rng(rng)
-    x, y = _check_pair(x, y)
-    cx, _ = _group_codes(gx, x.shape[0], "gx")
-    cy, _ = _group_codes(gy, y.shape[0], "gy")
-    scores = _oof_scores(x, y, cx, cy, folds=folds, l2=l2, rng=rng)
-    labels = np.concatenate([np.zeros(x.shape[0]), np.ones(y.shape[0])])
-    return auc_score(scores, labels)
+    scores = domain_scores(x, y, gx, gy, folds=folds, l2=l2, rng=rng)
+    n = _row_count(x)
+    return auc_score(scores, np.concatenate([np.zeros(n), np.ones(scores.shape[0] - n)]))
 
 
 def _permutation_sides(
