@@ -148,10 +148,13 @@ def camera_signatures(
         for r, sets in (rivals or {}).items() if r not in effect_sets
     })  # fmt: skip
     spread = np.concatenate([nominal[None], *curves.values()]).std(axis=0)
-    se = np.maximum(_bootstrap_se(sim, rng), SCALE_FLOOR * spread + 1e-12)
+    raw_se = _bootstrap_se(sim, rng)
+    se = np.maximum(raw_se, SCALE_FLOOR * spread + 1e-12)
     z = {e: np.abs(c - nominal).max(axis=0) / se for e, c in curves.items()}
     features = np.concatenate([sim.rungs[r] for r in PIXEL_RUNGS], axis=1)
-    usable = np.tile(features.std(axis=0) > 0, 2)  # a feature S never varies is no signature
+    # a feature S never varies, or a statistic no resampling of S moves (the median of a
+    # clipped-black share that most clean clips have at 0), is no signature
+    usable = np.tile(features.std(axis=0) > 0, 2) & (raw_se > 0)
     out = {}
     for effect, (strengths, _, neutral) in effect_sets.items():
         others = [z[o] for o in z if o != effect]
