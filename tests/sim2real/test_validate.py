@@ -122,6 +122,7 @@ def test_a_fixed_single_effect_keeps_a_drawn_strength():
     )
     answer = draw_answer(7, library, "single", "visual.sensor_noise")
     (effect,) = answer["effects"]
-    assert effect["name"] == "visual.sensor_noise" and 2.0 <= effect["strength"] <= 8.0  # upper half in log
+    # strengths are drawn in the half of the range away from neutral (upper half in log)
+    assert effect["name"] == "visual.sensor_noise" and 2.0 <= effect["strength"] <= 8.0
     with pytest.raises(ValueError, match="effect"):
         draw_answer(7, library, "pair", "visual.sensor_noise")
