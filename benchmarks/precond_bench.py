@@ -23,10 +23,10 @@ from collections.abc import Callable
 
 import torch
 
+from simulator.cloth.material import ClothMaterial
 from simulator.energies import EnergyBendingDihedral, EnergyGravity, EnergyMembraneWang
 from simulator.forces import AerodynamicDrag
 from simulator.integrators.base import IncrementalPotential
-from simulator.material import ClothMaterial
 from simulator.mesh import TriMesh
 from simulator.model import SimControl, SimModel, SimState
 from simulator.solvers.block_sparse import BlockSparse

@@ -36,10 +36,10 @@ import time
 
 import torch
 
+from simulator.cloth.material import ClothMaterial, class_summary
+from simulator.cloth.scenes import ScenarioWind
 from simulator.integrators import IntegratorBackwardEuler, solve_static
 from simulator.kernels import resolve_backend
-from simulator.material import ClothMaterial, class_summary
-from simulator.scenario import ScenarioWind
 from simulator.solvers import NewtonSettings
 from simulator.threads import use_process_threads
 
@@ -53,7 +53,7 @@ RECORD_EVERY = 10
 """Steps between the positions kept for the accuracy comparison."""
 REFERENCE = NewtonSettings(max_iters=10, tol_dx=1e-9, cg_rtol=1e-10, cg_max_iters=2000)
 """Tight solve of the accuracy reference; either backend gives the same trajectory to 1e-9 m
-(``tests/simulator/test_kernels.py``), the kernels in minutes instead of about 20."""
+(``tests/simulator/core/test_kernels.py``), the kernels in minutes instead of about 20."""
 
 
 def run_ours(classes: list[int], dtype: torch.dtype, settings: NewtonSettings) -> dict:

@@ -26,9 +26,9 @@ import time
 
 import torch
 
+from simulator.cloth.material import ClothMaterial
+from simulator.cloth.scenes import ScenarioWind
 from simulator.integrators import IntegratorBackwardEuler, solve_static
-from simulator.material import ClothMaterial
-from simulator.scenario import ScenarioWind
 from simulator.solvers import NewtonSettings
 from simulator.threads import use_process_threads
 

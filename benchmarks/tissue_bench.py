@@ -11,9 +11,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from simulator.inverse.benchmark_pso import run_pso_benchmark
-from simulator.inverse.ukf_experiments import run_ukf_benchmark
-from simulator.monocular.benchmark import run_mono_benchmark
+from benchmarks.thesis.monocular_benchmark import run_mono_benchmark
+from benchmarks.thesis.pso_benchmark import run_pso_benchmark
+from benchmarks.thesis.ukf_experiments import run_ukf_benchmark
 from simulator.threads import use_process_threads
 
 

@@ -3,7 +3,7 @@
 ``python -m datasets.clone video=<file or folder> run=<training run or checkpoint>``
 (configs/clone.yaml) recovers the material class of the cloth in a video with a trained
 classifier and "clones" it onto another piece of cloth: a square cloth draped over the arm
-scene's bending arm (:class:`simulator.scenario.ScenarioArmBend`; ``motion=wind`` shows the
+scene's bending arm (:class:`simulator.cloth.scenes.ScenarioArmBend`; ``motion=wind`` shows the
 wind scene instead). The thesis clones onto a skirt; the drape shows the same thing, how
 the recovered material hangs and folds, with a scene this repository already simulates.
 
@@ -38,7 +38,7 @@ hidden folder there and moved into place, so a failure leaves none of them):
 * ``contact_sheet.png``: labelled rows (input, predicted, the two neighbours), a few frames
   each;
 * ``sequence.npz``: the three classes' mesh sequence (:mod:`simulator.sequence`; export it
-  with ``python -m simulator.tools.export``).
+  with ``python -m simulator.export``).
 
 Every field is checked, the checkpoint loaded and the video probed before anything is
 predicted or simulated: a bad value ends the command with one line ``error: <field> ...``
@@ -69,6 +69,12 @@ from models.evaluate import check_class_count, predict
 from models.material_classifier import MaterialClassifierModule, load_classifier
 from models.scores import material_scores
 from render.capsules import sequence_capsules
+from simulator.cloth.material import (
+    BEND_MULTIPLIERS,
+    CLASS_COUNT,
+    class_summary,
+    multipliers_from_class,
+)
 from simulator.errors import (
     InputError,
     check_device,
@@ -77,7 +83,6 @@ from simulator.errors import (
     config_errors,
     report_user_errors,
 )
-from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT, class_summary, multipliers_from_class
 from simulator.threads import check_threads, use_process_threads
 
 from .generate import spec_from_config
@@ -359,7 +364,7 @@ def _checked(cfg: DictConfig) -> dict:
     fps = check_float(cfg.fps, "fps", 0, low_open=True)
     record_time = check_float(cfg.record_time, "record_time", 0, low_open=True)
     lead_in = check_float(cfg.lead_in, "lead_in", 0)
-    frame_count = round(record_time * fps) + 1  # as simulator.rollout.simulate records them
+    frame_count = round(record_time * fps) + 1  # as simulator.cloth.rollout.simulate records them
     shown = frame_count - round(lead_in * fps)
     if frame_count < 2 or shown < 1:
         raise InputError(

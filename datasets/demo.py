@@ -32,8 +32,8 @@ import numpy as np
 from omegaconf import DictConfig
 
 from render.capsules import sequence_capsules
+from simulator.cloth.material import class_summary
 from simulator.errors import InputError, check_float, check_int, config_errors, report_user_errors
-from simulator.material import class_summary
 from simulator.threads import check_threads, use_process_threads
 
 from .generate import spec_from_config
@@ -86,7 +86,7 @@ def _checked(cfg: DictConfig) -> tuple[DatasetSpec, WorkUnit, dict]:
     fps = check_float(cfg.fps, "fps", 0, low_open=True)
     record_time = check_float(cfg.record_time, "record_time", 0, low_open=True)
     lead_in = check_float(cfg.lead_in, "lead_in", 0)
-    frame_count = round(record_time * fps) + 1  # as simulator.rollout.simulate records them
+    frame_count = round(record_time * fps) + 1  # as simulator.cloth.rollout.simulate records them
     shown = frame_count - round(lead_in * fps)
     if frame_count < 2 or shown < 1:
         raise InputError(

@@ -18,12 +18,13 @@ from omegaconf import DictConfig, OmegaConf
 
 from render.effects import VisualEffects
 from render.textures import TextureMode
-from simulator.effects import PhysicsEffects
+from simulator.cloth.effects import PhysicsEffects
+from simulator.cloth.material import check_class_ids
+from simulator.cloth.scenes import RESOLUTION_LEVELS
 from simulator.errors import (
     InputError,
     check_bool,
     check_choice,
-    check_class_ids,
     check_device,
     check_float,
     check_int,
@@ -31,7 +32,6 @@ from simulator.errors import (
     config_errors,
     report_user_errors,
 )
-from simulator.scenario import RESOLUTION_LEVELS
 from simulator.threads import use_process_threads
 
 from .generation import generate_dataset

@@ -1,7 +1,7 @@
 """Dataset generation: simulate each work unit, render its clips, write shards, resume.
 
 Data flow per unit: :class:`~datasets.plan.WorkUnit` -> one batched rollout
-(:func:`simulator.rollout.simulate`; cached as a mesh sequence keyed by the physics hash,
+(:func:`simulator.cloth.rollout.simulate`; cached as a mesh sequence keyed by the physics hash,
 so datasets that differ only in rendering reuse it) -> :class:`render.ClothRenderer` clips
 -> one tar shard per split -> the unit's index file. :func:`generate_dataset` runs the
 pending units in parallel with joblib and merges the manifest once every unit exists.
@@ -28,9 +28,9 @@ import numpy as np
 from render.backgrounds import make_background
 from render.capsules import sequence_capsules
 from render.textures import make_texture
+from simulator.cloth.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
+from simulator.cloth.rollout import simulate
 from simulator.errors import InputError
-from simulator.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
-from simulator.rollout import simulate
 from simulator.sequence import MeshSequence
 from simulator.threads import torch_threads
 
@@ -82,7 +82,7 @@ def simulate_unit(
 ) -> MeshSequence:
     """The unit's mesh sequence: from the cache when present, else simulated (and cached).
 
-    ``on_step(step, total)`` follows the rollout (see :func:`simulator.rollout.simulate`).
+    ``on_step(step, total)`` follows the rollout (see :func:`simulator.cloth.rollout.simulate`).
     ``multipliers`` = (stretch, bend) per simulation of the basis fabric, instead of the
     simulations' classes (the sim-to-real diagnosis draws continuous materials); they are
     part of the cache key.

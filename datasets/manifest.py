@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.material import BEND_MULTIPLIERS, class_summary
+from simulator.cloth.material import BEND_MULTIPLIERS, class_summary
 from simulator.sequence import atomic_write_bytes
 
 from .plan import SimulationPlan

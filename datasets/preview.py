@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simulator.material import multipliers_from_class
+from simulator.cloth.material import multipliers_from_class
 from simulator.sequence import atomic_write_bytes
 
 from .clip_dataset import ClothClipDataset

@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from simulator.errors import user_error
 from simulator.sequence import atomic_write_bytes
 
 __all__ = [
@@ -47,6 +48,7 @@ __all__ = [
 _PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
 
 
+@user_error
 class ShardError(RuntimeError):
     """A shard is missing, corrupted, or does not hold what the manifest says."""
 

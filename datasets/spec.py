@@ -25,10 +25,10 @@ from render.camera import CameraSpec
 from render.effects import VisualEffects
 from render.lights import LightSpec
 from render.textures import TextureMode
-from simulator.effects import PhysicsEffects
-from simulator.material import CLASS_COUNT
-from simulator.rollout import SimSettings
-from simulator.scenario import ScenarioArmBend, ScenarioWind
+from simulator.cloth.effects import PhysicsEffects
+from simulator.cloth.material import CLASS_COUNT
+from simulator.cloth.rollout import SimSettings
+from simulator.cloth.scenes import ScenarioArmBend, ScenarioWind
 
 __all__ = ["MOTIONS", "PRESETS", "DatasetSpec", "SizePreset", "check_int", "physics_key_of"]
 

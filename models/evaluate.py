@@ -9,12 +9,12 @@ real_dir=FOLDER [real.columns=[stiffness,density,bending_rigidity]] [real.group=
 (``<dataset>-<split>`` or ``<real folder>`` alone when only one is evaluated). ``<hash>`` is
 the first 10 hex digits of the sha256 of every input that decides the numbers: the
 checkpoint's bytes, the dataset's manifest, the real folder's ``labels.csv`` and file list
-(names, sizes, modification times), split and protocol, clip cutting, columns, group rule
-and bootstrap. The same inputs always map to the same folder and different inputs never share
-one, so neither the training run's ``RUN/eval/sim_test.json`` (read by :mod:`models.table72`)
-nor an earlier report is overwritten. A folder whose evaluation finished (it holds
-``evaluation.json``, the hashed inputs) is refused unless ``overwrite=true``; an evaluation
-that fails removes the folder it created. The folder holds:
+(names, sizes, modification times), split and protocol, clip cutting, columns, group rule and
+bootstrap. The same inputs always map to the same folder and different inputs never share one, so
+neither the training run's ``RUN/eval/sim_test.json`` (read by :mod:`benchmarks.thesis.table72`) nor
+an earlier report is overwritten. A folder whose evaluation finished (it holds ``evaluation.json``,
+the hashed inputs) is refused unless ``overwrite=true``; an evaluation that fails removes the folder
+it created. The folder holds:
 
 * ``sim_<split>.json`` / ``.md``: top-1 and top-5 accuracy over the 54 classes, stretch- and
   bend-factor accuracy, 6 x 9 grid MAE, the same per wind level (W1, W2, W3), and
@@ -52,8 +52,8 @@ from datasets.clip_dataset import ClothClipDataset
 from datasets.manifest import SPLIT_PROTOCOLS, Manifest
 from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset
 from datasets.spec import SPLITS
+from simulator.cloth.material import CLASS_COUNT
 from simulator.errors import InputError, check_choice, check_float, check_int, report_user_errors
-from simulator.material import CLASS_COUNT
 from simulator.sequence import atomic_write_bytes
 
 from .correlation import correlate

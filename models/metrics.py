@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
+from simulator.cloth.material import BEND_MULTIPLIERS, CLASS_COUNT
 
 __all__ = [
     "BREAKDOWNS", "breakdown_metrics", "classification_metrics", "confusion_matrix",

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
+from simulator.cloth.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
 from simulator.sequence import atomic_write_bytes
 
 __all__ = [

@@ -1,7 +1,7 @@
 """Scalar material scores derived from class probabilities, for correlation with measurements.
 
 The 54 classes are ``class_id = stretch_index * 9 + bend_index`` with both multiplier lists
-increasing (``simulator.material``), so the class id *is* a position in a stiffness
+increasing (``simulator.cloth.material``), so the class id *is* a position in a stiffness
 ordering: stretch-major, then bend. Thesis 7.7.2.2 correlates the predicted class number
 (0..53, "the higher the number generally means the cloth is stiffer") with both the measured
 stiffness and the measured density of real fabrics; our definitions:
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import torch
 
-from simulator.material import CLASS_COUNT
+from simulator.cloth.material import CLASS_COUNT
 
 from .metrics import grid_position
 

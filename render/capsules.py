@@ -71,7 +71,7 @@ def capsule_pose(p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
 def sequence_capsules(seq) -> np.ndarray | None:
     """The arm's capsules at each recorded frame of a mesh sequence.
 
-    Frame k of :func:`simulator.rollout.simulate` is recorded at time
+    Frame k of :func:`simulator.cloth.rollout.simulate` is recorded at time
     ``record_start_time + k * substeps * dt``; the capsules are the scene driver's at that
     time.
 
@@ -86,8 +86,8 @@ def sequence_capsules(seq) -> np.ndarray | None:
         return None
     import torch
 
-    from simulator.material import ClothMaterial
-    from simulator.scenario import ScenarioArmBend
+    from simulator.cloth.material import ClothMaterial
+    from simulator.cloth.scenes import ScenarioArmBend
 
     scenario = ScenarioArmBend(**seq.meta["scenario"])
     batch = seq.pos.shape[0]

@@ -1,7 +1,7 @@
 """Named visual effects: each a switch (off by default), composable, with its own parameters.
 
 The sim-to-real study turns these on one at a time, like the physical effects in
-:mod:`simulator.effects`. Two groups:
+:mod:`simulator.cloth.effects`. Two groups:
 
 * **renderer effects** (``lighting_variation``, ``specular``, ``shadows``, ``camera_shake``,
   ``motion_blur``) change what :class:`render.renderer.ClothRenderer` draws;
@@ -66,7 +66,7 @@ def _strength(
 ):  # fmt: skip
     """A field that is the strength of switch ``of``, plausible in [low, high].
 
-    Same metadata as :func:`simulator.effects.strength` (not imported: it would pull torch
+    Same metadata as :func:`simulator.cloth.effects.strength` (not imported: it would pull torch
     into ``render``); the sim-to-real diagnosis fits the strength within this range.
     ``neutral``: the strength at which the switch changes nothing, when it is not below the
     range (a frame-rate ratio of 1, a JPEG quality of 100, the matte roughness 1).
@@ -187,7 +187,7 @@ class VisualEffects:
     @staticmethod
     def from_dict(values: Mapping | None) -> VisualEffects:
         """Build from a (config) mapping; unknown keys raise, naming them and the allowed keys."""
-        from simulator.effects import switches_from_dict  # lazy: keeps torch out of render
+        from simulator.cloth.effects import switches_from_dict  # lazy: keeps torch out of render
 
         return switches_from_dict(VisualEffects, values, "visual effects")
 

@@ -1,7 +1,7 @@
 """The candidate library: every effect switch and scene parameter the diagnosis can try.
 
 Candidates are read from the registries' dataclass fields, so a switch added to
-:class:`simulator.effects.PhysicsEffects` or :class:`render.effects.VisualEffects` becomes a
+:class:`simulator.cloth.effects.PhysicsEffects` or :class:`render.effects.VisualEffects` becomes a
 candidate with no change here:
 
 * a ``bool`` field is a switch; the candidate sets it to the opposite of its default (most
@@ -27,7 +27,7 @@ import numpy as np
 
 from datasets.spec import DatasetSpec
 from render.effects import IMAGE_EFFECT_ORDER, VisualEffects
-from simulator.effects import PhysicsEffects
+from simulator.cloth.effects import PhysicsEffects
 
 __all__ = ["STAGES", "Candidate", "candidate_library", "select_candidates"]
 
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> None:
         "default wind scene.",
     ).parse_args(argv)
     from datasets.spec import PRESETS
-    from simulator.scenario import ScenarioWind
+    from simulator.cloth.scenes import ScenarioWind
 
     spec = DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=PRESETS["small"])
     for c in candidate_library(spec).values():

@@ -22,7 +22,7 @@ from datasets.plan import WorkUnit, plan_units
 from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
 from render.capsules import sequence_capsules
-from simulator.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
+from simulator.cloth.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
 
 __all__ = ["ClipSet", "diagnosis_spec", "prior_materials", "real_clips", "simulated_clips"]
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from datasets.runs import find_run
 from datasets.spec import DatasetSpec, check_int
-from simulator.material import BEND_MULTIPLIERS, CLASS_COUNT
+from simulator.cloth.material import BEND_MULTIPLIERS, CLASS_COUNT
 from simulator.threads import use_process_threads
 
 from .candidates import Candidate, candidate_library, select_candidates

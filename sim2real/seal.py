@@ -26,7 +26,7 @@ import numpy as np
 
 from datasets.plan import SimulationPlan
 from datasets.spec import PRESETS, DatasetSpec, check_int
-from simulator.material import (
+from simulator.cloth.material import (
     BASIS_MATERIAL,
     BEND_MULTIPLIERS,
     STRETCH_MULTIPLIERS,
@@ -199,7 +199,7 @@ def seal_set(
     """
     from datasets.generation import render_frames
     from render.capsules import sequence_capsules
-    from simulator.rollout import simulate
+    from simulator.cloth.rollout import simulate
 
     check_int("seed", seed, low=0)
     check_int("videos", videos, low=4)
@@ -283,8 +283,8 @@ def _base_spec(data_dir: str | None, level: int) -> DatasetSpec:
         from datasets.manifest import read_json
 
         return DatasetSpec.from_json(read_json(Path(data_dir) / "spec.json")["spec"])
-    from simulator.rollout import SimSettings
-    from simulator.scenario import ScenarioWind
+    from simulator.cloth.rollout import SimSettings
+    from simulator.cloth.scenes import ScenarioWind
 
     settings = SimSettings(max_dt=0.00834, settle_max_dt=0.0167, dtype="float32")
     return DatasetSpec(

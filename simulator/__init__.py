@@ -1,4 +1,11 @@
-"""Batched implicit solver core for cloth (and, later, tetrahedral tissue) simulation.
+"""Batched implicit solver core; cloth, tissue, calibration and monocular wings sit above it.
+
+The core (this package's top-level modules and ``energies/``, ``forces/``, ``integrators/``,
+``solvers/``, ``kernels/``) knows meshes, models, energies and solvers, never a fabric or an
+organ. The wings import the core and never the other way round (an import-linter contract in
+CI): :mod:`simulator.cloth` (fabrics, subspace, scenes, rollouts), :mod:`simulator.tissue`
+(organ meshes and scenes), :mod:`simulator.calibrate` (PSO, UKF), :mod:`simulator.monocular`
+(the paper's reconstruction).
 
 Shape legend used in every docstring:
 
@@ -11,65 +18,33 @@ Arrays are row-major ``(N, 3)``; positions in metres, SI units throughout. Only
 torch and numpy are imported here (no hydra / lightning / pyrender / cv2).
 """
 
-from .cloth import ClothModelKind, build_cloth_model
-from .effects import PHYSICS_EFFECT_NAMES, PhysicsEffects
+from .errors import InputError, MaterialError
 from .integrators import (
     IntegratorBackwardEuler,
     IntegratorNewmark,
     SimulationDiverged,
     solve_static,
 )
-from .material import (
-    BASIS_MATERIAL,
-    BEND_MULTIPLIERS,
-    CLASS_COUNT,
-    STRETCH_MULTIPLIERS,
-    ClothMaterial,
-    MaterialError,
-    WangMaterial,
-    class_summary,
-    load_wang_material,
-    multipliers_from_class,
-)
 from .mesh import MeshError, TriMesh
 from .model import SimControl, SimModel, SimState
-from .rollout import SimSettings, simulate
-from .scenario import RESOLUTION_LEVELS, ScenarioArmBend, ScenarioWind
 from .sequence import MeshSequence
 from .solvers import NewtonSettings, StepStats
 from .tetmesh import TetMesh
 
 __all__ = [
-    "BASIS_MATERIAL",
-    "BEND_MULTIPLIERS",
-    "CLASS_COUNT",
-    "PHYSICS_EFFECT_NAMES",
-    "RESOLUTION_LEVELS",
-    "STRETCH_MULTIPLIERS",
-    "ClothMaterial",
-    "ClothModelKind",
+    "InputError",
     "IntegratorBackwardEuler",
     "IntegratorNewmark",
     "MaterialError",
     "MeshError",
     "MeshSequence",
     "NewtonSettings",
-    "PhysicsEffects",
-    "ScenarioArmBend",
-    "ScenarioWind",
     "SimControl",
     "SimModel",
-    "SimSettings",
     "SimState",
     "SimulationDiverged",
     "StepStats",
     "TetMesh",
     "TriMesh",
-    "WangMaterial",
-    "build_cloth_model",
-    "class_summary",
-    "load_wang_material",
-    "multipliers_from_class",
-    "simulate",
     "solve_static",
 ]

@@ -7,10 +7,10 @@ with status 2, instead of a traceback. Programming errors still raise with their
 Messages name the field and the allowed values.
 
 An entry point checks every field before it does any work: scalars with :func:`check_int`,
-:func:`check_float`, :func:`check_choice`, :func:`check_bool`, :func:`check_class_ids` and
-:func:`check_device`; instantiable nodes with :func:`check_node` (types from the target's
-annotations); and it builds them inside :func:`config_errors`, so that the range checks of
-their constructors (a ValueError naming the field) become :class:`InputError` too.
+:func:`check_float`, :func:`check_choice`, :func:`check_bool` and :func:`check_device` (class ids:
+:func:`simulator.cloth.material.check_class_ids`); instantiable nodes with :func:`check_node` (types
+from the target's annotations); and it builds them inside :func:`config_errors`, so that the range
+checks of their constructors (a ValueError naming the field) become :class:`InputError` too.
 """
 
 from __future__ import annotations
@@ -34,20 +34,30 @@ class InputError(ValueError):
     """Bad user input; the message names the field and the allowed values."""
 
 
+class MaterialError(ValueError):
+    """An unknown material or class, a malformed material file, or a modulus out of range."""
+
+
+_DOMAIN_ERRORS: list[type[BaseException]] = [MaterialError]
+"""Domain errors of the packages above the core that a user can fix (see :func:`user_error`)."""
+
+
+def user_error(cls: type[BaseException]) -> type[BaseException]:
+    """Class decorator: ``cls`` is an error a user can fix, reported in one line at entry points.
+
+    Packages above the core register their domain errors this way (the core never imports
+    them).
+    """
+    if cls not in _DOMAIN_ERRORS:
+        _DOMAIN_ERRORS.append(cls)
+    return cls
+
+
 def _user_errors() -> tuple[type[BaseException], ...]:
-    """Errors a user can fix: ours, plus the domain errors of the packages (imported lazily)."""
-    errors: list[type[BaseException]] = [InputError, FileNotFoundError]
-    from simulator.material import MaterialError
+    """Errors a user can fix: ours, plus the registered domain errors of the packages."""
     from simulator.mesh import MeshError
 
-    errors += [MaterialError, MeshError]
-    try:
-        from datasets.shards import ShardError
-    except ImportError:  # the simulator works without the datasets package
-        pass
-    else:
-        errors.append(ShardError)
-    return tuple(errors)
+    return (InputError, FileNotFoundError, MeshError, *_DOMAIN_ERRORS)
 
 
 def _user_error_in(exc: BaseException) -> BaseException | None:
@@ -156,29 +166,6 @@ def check_bool(value: Any, field: str) -> bool:
         raise InputError(f"{field} must be true or false, got {value!r}")
     return value
 
-
-def check_class_ids(values: Any, field: str = "classes") -> tuple[int, ...]:
-    """Subspace class ids as ints; refuses a non-list, text and non-integral numbers.
-
-    ``1.0`` is class 1; ``1.7`` is refused rather than truncated to class 1.
-    """
-    from simulator.material import CLASS_COUNT
-
-    allowed = f"integer class ids in [0, {CLASS_COUNT - 1}], e.g. {field}=[0,26,53]"
-    if isinstance(values, str | bytes | Mapping) or not isinstance(values, Iterable):
-        raise InputError(f"{field} must be a list of {allowed}; got {values!r}")
-    ids = []
-    for position, value in enumerate(values):
-        integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
-        if isinstance(value, bool) or not integral or not 0 <= value < CLASS_COUNT:
-            raise InputError(
-                f"{field}[{position}] must be an integer class id in [0, {CLASS_COUNT - 1}], "
-                f"got {value!r}"
-            )
-        ids.append(int(value))
-    if not ids:
-        raise InputError(f"{field} must be a non-empty list of {allowed}; got []")
-    return tuple(ids)
 
 
 def check_device(value: Any, field: str) -> str:

@@ -6,7 +6,7 @@ whose moduli the multi-region recovery estimates), the outward surface triangles
 lumped vertex volumes. :meth:`TetMesh.from_arrays` validates everything and raises
 :class:`simulator.mesh.MeshError` naming the field at fault. :meth:`TetMesh.box` is a
 structured builder for analytic tests; real geometry comes from gmsh
-(:mod:`simulator.meshing`).
+(:mod:`simulator.tissue.meshing`).
 """
 
 from __future__ import annotations

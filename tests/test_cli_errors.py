@@ -10,9 +10,9 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
+import benchmarks.thesis.tissue_jobs as tissue_entry
 import sim2real.diagnose as diagnose_entry
-import simulator.simulate as simulate_entry
-import simulator.tools.tissue as tissue_entry
+import simulator.cloth.simulate as simulate_entry
 import train as train_entry
 from simulator.errors import InputError
 
@@ -155,12 +155,12 @@ def test_diagnose_checks_fields_before_it_starts(override, message, tmp_path):
 @pytest.mark.parametrize(
     ("command", "line"),
     [
-        (["-m", "simulator.simulate", "classes=[1.7]"],
+        (["-m", "simulator.cloth.simulate", "classes=[1.7]"],
          "error: classes[0] must be an integer class id in [0, 53], got 1.7"),
         (["-m", "datasets.generate", "seed=abc"], "error: seed must be an integer >= 0, got 'abc'"),
         (["train.py", "trainer.max_epochs=abc"],
          "error: trainer.max_epochs must be an integer or null, got 'abc'"),
-        (["-m", "simulator.tools.tissue", "tissue_job=ukf", "tissue_job.trials=abc"],
+        (["-m", "benchmarks.thesis.tissue_jobs", "tissue_job=ukf", "tissue_job.trials=abc"],
          "error: tissue_job.trials must be an integer, got 'abc'"),
     ],
 )  # fmt: skip

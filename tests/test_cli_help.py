@@ -1,8 +1,8 @@
 """Every argparse command prints its help and exits on ``--help``, before doing any work.
 
-The Hydra entry points (simulator.simulate, datasets.generate, datasets.demo, datasets.clone,
-train.py, simulator.tools.tissue, sim2real.diagnose, models.evaluate) get ``--help`` from Hydra
-itself.
+The Hydra entry points (simulator.cloth.simulate, datasets.generate, datasets.demo,
+datasets.clone, train.py, benchmarks.thesis.tissue_jobs, sim2real.diagnose, models.evaluate) get
+``--help`` from Hydra itself.
 """
 
 import importlib
@@ -13,19 +13,20 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 HYDRA = {
-    "simulator.simulate", "datasets.generate", "datasets.demo", "datasets.clone",
-    "simulator.tools.tissue", "sim2real.diagnose", "models.evaluate",
+    "simulator.cloth.simulate", "datasets.generate", "datasets.demo", "datasets.clone",
+    "benchmarks.thesis.tissue_jobs", "sim2real.diagnose", "models.evaluate",
 }  # fmt: skip
 
 COMMANDS = [
     "benchmarks.datagen_bench", "benchmarks.diagnose_bench", "benchmarks.mujoco_cloth",
     "benchmarks.precond_bench", "benchmarks.render_bench", "benchmarks.sim_bench",
     "benchmarks.thread_load_bench", "benchmarks.tissue_bench", "benchmarks.train_bench",
-    "datasets.feature_probe", "datasets.geometry_oracle", "datasets.preview", "models.table72",
+    "benchmarks.thesis.feature_probe", "benchmarks.thesis.geometry_oracle", "datasets.preview",
+    "benchmarks.thesis.table72",
     "sim2real.candidates", "sim2real.seal", "sim2real.shrink", "sim2real.validate",
-    "simulator.inverse.benchmark_pso", "simulator.tools.export",
-    "simulator.tools.monocular_table", "simulator.tools.sensitivity", "simulator.tools.table71",
-    "simulator.tools.tissue_tables", "simulator.tools.ukf_table",
+    "benchmarks.thesis.pso_benchmark", "simulator.export",
+    "benchmarks.thesis.paper_table1", "benchmarks.thesis.fig73", "benchmarks.thesis.table71",
+    "benchmarks.thesis.tissue_tables", "benchmarks.thesis.table41",
 ]  # fmt: skip
 
 

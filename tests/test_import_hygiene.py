@@ -1,14 +1,50 @@
-"""`import simulator` stays light: no rendering, training or config frameworks."""
+"""`import simulator` stays light, and the layers hold: the solver core imports no wing."""
 
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_simulator_import_keeps_heavy_frameworks_out():
+@pytest.mark.parametrize("package", ["simulator", "simulator.cloth", "simulator.calibrate"])
+def test_simulator_import_keeps_heavy_frameworks_out(package):
     code = (
-        "import sys, simulator\n"
+        f"import sys, {package}\n"
         "bad = [m for m in ('pyrender', 'lightning', 'hydra', 'cv2') if m in sys.modules]\n"
         "assert not bad, bad\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
     assert done.returncode == 0, done.stderr.decode()
+
+
+def test_core_imports_no_wing():
+    """The import-linter contracts of pyproject.toml (CI also runs ``lint-imports``)."""
+    pytest.importorskip("importlinter")
+    code = (
+        "import sys; from importlinter.cli import lint_imports; "
+        "sys.exit(lint_imports(no_cache=True))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, timeout=300, cwd=ROOT, text=True
+    )
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert "0 broken" in done.stdout
+
+
+def test_core_contract_lists_every_core_module():
+    """A new module of the core is under the contract too: every top-level module or
+    subpackage of ``simulator`` that is not a wing is a source of the core contract."""
+    import pkgutil
+    import tomllib
+
+    import simulator
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    core = next(c for c in contracts["contracts"] if c["name"].startswith("The solver core"))
+    wings = {"cloth", "tissue", "calibrate", "monocular"}
+    modules = {m.name for m in pkgutil.iter_modules(simulator.__path__)} - wings
+    assert {s.removeprefix("simulator.") for s in core["source_modules"]} == modules
+    assert {f"simulator.{w}" for w in wings} <= set(core["forbidden_modules"])

@@ -19,7 +19,7 @@ step the ``encoder``'s features of frame t + 1 (the cloth's shape, what a per-fr
 reads) beside a second ``motion_encoder``'s features of the difference t -> t + 1 (its
 motion), the two streams of Simonyan and Zisserman (2014) with frame differences standing in
 for optical flow. On the simulated meshes both carry class information that the other lacks
-(``python -m datasets.feature_probe``).
+(``python -m benchmarks.thesis.feature_probe``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from simulator.material import CLASS_COUNT
+from simulator.cloth.material import CLASS_COUNT
 
 from .frame_encoder import FrameEncoder
 
@@ -48,8 +48,8 @@ def frame_differences(video: torch.Tensor) -> torch.Tensor:
     """Clips (B, T, 3, H, W) in [0, 1] -> (B, T - 1, 3, H, W) in [0, 1]: signed-sqrt differences.
 
     ``0.5 + 0.5 sign(d) sqrt(|d|)`` with ``d = frame[t + 1] - frame[t]``: zero motion maps to
-    mid-grey and the square root lifts the small differences of slow cloth against strong
-    texture edges. On the full wind preset the motion reference of ``datasets.geometry_oracle``
+    mid-grey and the square root lifts the small differences of slow cloth against strong texture
+    edges. On the full wind preset the motion reference of ``benchmarks.thesis.geometry_oracle``
     (1-NN on 16 x 16 grey sqrt|d|) names 33.1 % of held-out clips' classes, mean frames 3.5 %.
     """
     _check_clips(video)

@@ -30,10 +30,13 @@ import math
 import torch
 
 from ..geometry import dihedral_angle, dihedral_angle_gradient, flat_indices, scatter_vertices
-from ..material import BEND_SAMPLE_CURVATURES
 from .base import ElementBlocks, Energy
 
-__all__ = ["BEND_SCALE", "EnergyBendingDihedral"]
+__all__ = ["BEND_SAMPLE_CURVATURES", "BEND_SCALE", "EnergyBendingDihedral"]
+
+BEND_SAMPLE_CURVATURES: tuple[float, ...] = (0.0, 10.0, 20.0, 30.0, 40.0)
+"""Curvatures [1/m] of the five bending samples per direction (ArcSim's spacing, the columns
+of the fabric files)."""
 
 BEND_SCALE = 1.0
 """Discrete-to-continuum factor (see module docstring)."""

@@ -43,16 +43,19 @@ import torch
 from scipy.optimize import nnls
 
 from ..geometry import deformation_gradient, flat_indices, scatter_vertices
-from ..material import STRETCH_SAMPLE_STRAIN
 from .base import ElementBlocks, Energy, psd_project_sym2
 
 __all__ = [
     "FIBRE_ANGLES_DEG",
+    "STRETCH_SAMPLE_STRAIN",
     "EnergyMembraneWang",
     "fit_fibres",
     "isotropic_rows",
     "membrane_density",
 ]
+
+STRETCH_SAMPLE_STRAIN = 0.5 * ((7.0 / 6.0) ** 2 - 1.0)
+"""Green strain of the measured stretching rows 1-5 (principal stretch 1 + 1/6)."""
 
 FIBRE_ANGLES_DEG = (0.0, 22.5, -22.5, 45.0, -45.0, 67.5, -67.5, 90.0)
 """Fibre directions to the warp [deg]; pairs +-a share one fitted strength."""

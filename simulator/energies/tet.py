@@ -34,7 +34,8 @@ from typing import NamedTuple
 import torch
 from torch.func import grad, jvp, vmap
 
-from ..material import MaterialError
+from simulator.errors import MaterialError
+
 from .base import ElementBlocks, Energy
 
 __all__ = [

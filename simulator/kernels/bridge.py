@@ -14,9 +14,8 @@ import numba
 import numpy as np
 import torch
 
-from ..energies.bending import BEND_SCALE, EnergyBendingDihedral
-from ..energies.membrane import EnergyMembraneWang, _fibre_vectors
-from ..material import BEND_SAMPLE_CURVATURES, STRETCH_SAMPLE_STRAIN
+from ..energies.bending import BEND_SAMPLE_CURVATURES, BEND_SCALE, EnergyBendingDihedral
+from ..energies.membrane import STRETCH_SAMPLE_STRAIN, EnergyMembraneWang, _fibre_vectors
 from .pcg import coarse_envelope, coarse_factor, coarse_matrix, pcg_two_level
 from .shell import shell_assemble, shell_energy
 

@@ -3,10 +3,10 @@
 Edge-based St Venant-Kirchhoff sheet (:mod:`.stvk`), image fitting through a pinhole camera
 (:mod:`.image_fit`, :mod:`.camera`), features and eq. 21 selection (:mod:`.features`), the
 per-frame warm-started solve (:mod:`.solve`, :mod:`.reconstruct`), baselines (:mod:`.linear`)
-and the synthetic benchmark (:mod:`.synthetic`, :mod:`.benchmark`).
+and the synthetic ground truth (:mod:`.synthetic`). The paper's Table 1 benchmark is
+:mod:`benchmarks.thesis.monocular_benchmark`.
 """
 
-from .benchmark import mono_table, run_mono_benchmark
 from .camera import PinholeCamera, look_at
 from .features import FeatureSet, locate_features, select_features
 from .image_fit import EnergyImageFit
@@ -29,8 +29,6 @@ __all__ = [
     "crossed_grid",
     "locate_features",
     "look_at",
-    "mono_table",
-    "run_mono_benchmark",
     "select_features",
     "sheet_mass_spring",
 ]

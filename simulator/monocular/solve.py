@@ -8,7 +8,7 @@ solved either by the core's batched PCG (:func:`simulator.solvers.newton.newton_
 for the small single-view problem, by a sparse direct LU of the free-DOF matrix whose
 structure (CSR indices and the scatter map from element blocks) is built once per mesh.
 Direct is the default: measured ~4x faster per frame at 1,600 elements on one core
-(``python -m simulator.tools.monocular_table`` writes both).
+(``python -m benchmarks.thesis.paper_table1`` writes both).
 """
 
 from __future__ import annotations

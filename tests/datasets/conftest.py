@@ -8,8 +8,8 @@ import pytest
 from datasets.generation import generate_dataset
 from datasets.spec import DatasetSpec, SizePreset
 from render.camera import CameraSpec
-from simulator.rollout import SimSettings
-from simulator.scenario import ScenarioWind
+from simulator.cloth.rollout import SimSettings
+from simulator.cloth.scenes import ScenarioWind
 
 TINY_PRESET = SizePreset(
     "tiny", sims_per_class=3, clips_per_sim=1, val_sims_per_class=1, test_sims_per_class=1,

@@ -27,8 +27,8 @@ import datasets.clone as clone
 from datasets.clip_dataset import ClothClipDataset
 from datasets.preview import LABEL_WIDTH, label_height
 from models.material_classifier import MaterialClassifierModule
+from simulator.cloth.material import CLASS_COUNT, multipliers_from_class
 from simulator.errors import InputError
-from simulator.material import CLASS_COUNT, multipliers_from_class
 
 from .conftest import write_mp4
 

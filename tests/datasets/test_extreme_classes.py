@@ -6,9 +6,9 @@ import pytest
 from render.backgrounds import make_background
 from render.camera import CameraSpec
 from render.textures import make_texture
-from simulator.material import ClothMaterial
-from simulator.rollout import SimSettings, simulate
-from simulator.scenario import ScenarioWind
+from simulator.cloth.material import ClothMaterial
+from simulator.cloth.rollout import SimSettings, simulate
+from simulator.cloth.scenes import ScenarioWind
 
 pytestmark = pytest.mark.render
 

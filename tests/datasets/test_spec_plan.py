@@ -6,7 +6,7 @@ import pytest
 
 from datasets.plan import plan_units
 from datasets.spec import PRESETS, DatasetSpec, SizePreset
-from simulator.scenario import ScenarioArmBend, ScenarioWind
+from simulator.cloth.scenes import ScenarioArmBend, ScenarioWind
 
 from .conftest import tiny_spec
 
@@ -108,7 +108,7 @@ def test_spec_round_trips_through_its_json_form():
 
     from render.camera import CameraSpec
     from render.effects import VisualEffects
-    from simulator.effects import PhysicsEffects
+    from simulator.cloth.effects import PhysicsEffects
 
     specs = [
         tiny_spec(),

@@ -7,15 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from datasets.clip_dataset import ClothClipDataset
-from datasets.datamodule import ClothVideoDataModule
-from datasets.geometry_oracle import (
+from benchmarks.thesis.geometry_oracle import (
     clip_geometry,
     clip_motion,
     clip_pixels,
     oracle_accuracy,
     run_oracle,
 )
+from datasets.clip_dataset import ClothClipDataset
+from datasets.datamodule import ClothVideoDataModule
 from datasets.manifest import Manifest
 
 SPLITS = ("train", "val", "test")

@@ -228,7 +228,7 @@ def test_coverage_is_the_alpha_each_frame_was_composited_with(renderer, cloth):
 
 
 def _arm_sequence(frame_count=11):
-    from simulator.scenario import ScenarioArmBend
+    from simulator.cloth.scenes import ScenarioArmBend
 
     scenario = ScenarioArmBend(resolution_level=1)
     mesh = scenario.mesh()

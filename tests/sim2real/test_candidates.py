@@ -7,8 +7,8 @@ import pytest
 from datasets.spec import DatasetSpec, SizePreset
 from render.effects import EFFECT_NAMES, VisualEffects
 from sim2real.candidates import STAGES, candidate_library, select_candidates
-from simulator.effects import PHYSICS_EFFECT_NAMES, PhysicsEffects, strength
-from simulator.scenario import ScenarioWind
+from simulator.cloth.effects import PHYSICS_EFFECT_NAMES, PhysicsEffects, strength
+from simulator.cloth.scenes import ScenarioWind
 
 SPEC = DatasetSpec(
     motion="wind", scenario=ScenarioWind(resolution_level=1),

@@ -21,8 +21,8 @@ from render.camera import CameraSpec
 from sim2real.candidates import candidate_library
 from sim2real.pipeline import Budget, run_diagnosis
 from sim2real.seal import draw_answer, seal_set
-from simulator.rollout import SimSettings
-from simulator.scenario import ScenarioWind
+from simulator.cloth.rollout import SimSettings
+from simulator.cloth.scenes import ScenarioWind
 
 NET = {
     "_target_": "models.components.video_nets.CNNLSTMNet",

@@ -115,7 +115,7 @@ def test_a_fixed_single_effect_keeps_a_drawn_strength():
     from datasets.spec import PRESETS, DatasetSpec
     from sim2real.candidates import candidate_library
     from sim2real.seal import draw_answer
-    from simulator.scenario import ScenarioWind
+    from simulator.cloth.scenes import ScenarioWind
 
     library = candidate_library(
         DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=PRESETS["small"])
