@@ -6,7 +6,10 @@ answer, and only then reads the answers and scores: stage correct, effect top-1 
 fitted strength inside its interval, share of the floor-corrected gap closed by the true
 effect, open-set false attribution. Candidate sets do not depend on the real set, so they
 are built once and reused from the cache by every sealed set. Writes ``validation.md``
-(the table), ``validation.json`` and ``confusion.png`` into ``--out``.
+(the table), ``validation.json`` and ``confusion.png`` into ``--out``. A plan can be
+sharded over processes (``--skip``, ``--sets``), each with its own ``--out``; once their
+``sets/``, ``answers/`` and ``reports/`` are merged into one folder, ``--finished-only``
+writes the table of every finished set there without sealing or diagnosing anything.
 """
 
 from __future__ import annotations
@@ -237,6 +240,13 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--n-jobs", type=int, default=2)
     parser.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="score only the sets whose diagnosis is finished under --out, sealing and "
+        "diagnosing nothing: the table of a plan sharded over processes (--skip), once "
+        "their folders are merged into one",
+    )
+    parser.add_argument(
         "--stability",
         type=int,
         default=0,
@@ -264,8 +274,13 @@ def main(argv: list[str] | None = None) -> None:
         start = time.perf_counter()
         real = out / "sets" / f"set{seed}"
         answer_path = out / "answers" / f"set{seed}.json"
+        if args.finished_only and not (
+            (out / "reports" / real.name / "report.json").is_file() and answer_path.is_file()
+        ):
+            continue
         answer_path.parent.mkdir(parents=True, exist_ok=True)
-        if not (real / "labels.csv").is_file() or not answer_path.is_file():
+        sealed = (real / "labels.csv").is_file() and answer_path.is_file()
+        if not sealed and not args.finished_only:
             answer = None if kind is None else draw_answer(seed, library, kind, effect)
             seal_set(real, base=base, seed=seed, videos=args.videos, answer_path=answer_path,
                      overwrite=True, answer=answer)  # fmt: skip
@@ -279,8 +294,10 @@ def main(argv: list[str] | None = None) -> None:
         rankings = [result["ranking"]["ranking"]]
         if len(rows) < args.stability:
             for sim_seed in (1, 2):
-                again = _diagnosed(out / "reports" / f"{real.name}-sim{sim_seed}",
-                                   {**common, "sim_seed": sim_seed})  # fmt: skip
+                folder = out / "reports" / f"{real.name}-sim{sim_seed}"
+                if args.finished_only and not (folder / "report.json").is_file():
+                    continue
+                again = _diagnosed(folder, {**common, "sim_seed": sim_seed})
                 rankings.append(again["ranking"]["ranking"])
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
         row = score_set(result, answer)
@@ -290,6 +307,9 @@ def main(argv: list[str] | None = None) -> None:
         row["minutes"] = (time.perf_counter() - start) / 60
         rows.append(row)
         print(json.dumps(row), flush=True)
+    if not rows:
+        print(f"error: no finished sealed set of the plan under {out}/reports", file=sys.stderr)
+        sys.exit(2)
     summary = summarise(rows)
     out.mkdir(parents=True, exist_ok=True)
     (out / "validation.json").write_text(json.dumps({"summary": summary, "sets": rows}, indent=2))

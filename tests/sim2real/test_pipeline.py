@@ -295,3 +295,33 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     assert "## 3. How far it shrinks" in text and "fine-tuned for 2 epochs" in text
     assert "SRCC" in text
     assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2
+
+
+def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_path, capsys):
+    from sim2real.validate import main as validate
+
+    root, out = world["root"], tmp_path / "merged"
+    report = {
+        "ranking": {"ranking": ["visual.sensor_noise", "visual.defocus_blur"],
+                    "top": "visual.sensor_noise", "explained": True},
+        "candidates": {"visual.sensor_noise": {"stage": "camera", "best_score": 0.9,
+                                               "strength_interval": [4.0, 8.0]}},
+        "scored_rungs": ["pixel"], "residual_stage": "",
+    }  # fmt: skip
+    (out / "reports" / "set1").mkdir(parents=True)
+    (out / "reports" / "set1" / "report.json").write_text(json.dumps(report))
+    (out / "answers").mkdir()
+    (out / "answers" / "set1.json").write_text(world["answer"].read_text())
+    args = ["--kinds", "single:2", "--first-seed", "1", "--sets", "0", "--finished-only",
+            "--run", str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]
+    validate(args)
+    rows = json.loads((out / "validation.json").read_text())["sets"]
+    assert [r["seed"] for r in rows] == [1] and rows[0]["top1"] and rows[0]["stage_correct"]
+    assert rows[0]["strength_in_interval"]
+    assert not (out / "sets").exists()  # set 2 was neither sealed nor diagnosed
+    assert (out / "validation.md").is_file() and (out / "confusion.png").is_file()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        validate([*args[:-1], str(tmp_path / "empty")])
+    assert stop.value.code == 2
+    assert "no finished sealed set" in capsys.readouterr().err
