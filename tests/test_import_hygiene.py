@@ -48,3 +48,18 @@ def test_core_contract_lists_every_core_module():
     modules = {m.name for m in pkgutil.iter_modules(simulator.__path__)} - wings
     assert {s.removeprefix("simulator.") for s in core["source_modules"]} == modules
     assert {f"simulator.{w}" for w in wings} <= set(core["forbidden_modules"])
+
+
+def test_only_entry_points_under_simulator_import_hydra_and_none_matplotlib():
+    import re
+
+    entry_points = {"simulator/cloth/simulate.py"}
+    pattern = re.compile(r"^\s*(?:import|from)\s+(hydra|omegaconf|matplotlib)\b", re.M)
+    found = {
+        str(path.relative_to(ROOT)): sorted(set(pattern.findall(path.read_text())))
+        for path in (ROOT / "simulator").rglob("*.py")
+    }
+    hydra = {f for f, mods in found.items() if {"hydra", "omegaconf"} & set(mods)}
+    plots = {f for f, mods in found.items() if "matplotlib" in mods}
+    assert hydra <= entry_points, hydra - entry_points
+    assert not plots, plots
