@@ -68,7 +68,6 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from models.evaluate import check_class_count, predict
 from models.material_classifier import MaterialClassifierModule, load_classifier
 from models.scores import material_scores
-from render.capsules import sequence_capsules
 from simulator.cloth.material import (
     BEND_MULTIPLIERS,
     CLASS_COUNT,
@@ -508,7 +507,7 @@ def run(cfg: DictConfig) -> CloneOutputs:
     seq.meta["clone"] = {"video": str(clips.video.path), "checkpoint": str(trained.checkpoint)}
     simulated = time.perf_counter()
 
-    capsules = sequence_capsules(seq)
+    capsules = seq.capsules
     first, stop = spec.lead_in_frames, spec.frames_per_sim
     rendered = []
     for b, sim in enumerate(unit.sims):

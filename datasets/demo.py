@@ -31,7 +31,6 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
-from render.capsules import sequence_capsules
 from simulator.cloth.material import class_summary
 from simulator.errors import InputError, check_float, check_int, config_errors, report_user_errors
 from simulator.threads import check_threads, use_process_threads
@@ -124,7 +123,7 @@ def run(cfg: DictConfig) -> DemoOutputs:
     sequence_path = seq.save(out_dir / "sequence.npz")
     simulated = time.perf_counter()
 
-    capsules = sequence_capsules(seq)
+    capsules = seq.capsules
     first, stop = spec.lead_in_frames, spec.frames_per_sim
     clips = []
     with _progress("render", "frame") as on_frames:

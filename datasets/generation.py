@@ -26,10 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from render.backgrounds import make_background
-from render.capsules import sequence_capsules
 from render.textures import make_texture
 from simulator.cloth.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
-from simulator.cloth.rollout import simulate
+from simulator.cloth.rollout import simulate, with_capsules
 from simulator.errors import InputError
 from simulator.sequence import MeshSequence
 from simulator.threads import torch_threads
@@ -96,7 +95,7 @@ def simulate_unit(
         path = Path(cache_dir) / folder / f"{unit.name}.npz"
         if path.is_file():
             try:
-                seq = MeshSequence.load(path)
+                seq = with_capsules(MeshSequence.load(path))  # older files lack them
                 if seq.pos.shape[:2] == (len(unit.sims), spec.frames_per_sim):
                     return seq
             except (OSError, ValueError, KeyError) as err:
@@ -159,7 +158,7 @@ def render_frames(
     Returns ``(frames, coverage[, passes])`` as :meth:`render.renderer.ClothRenderer.
     render_clip` does; ``look`` is the simulation's (texture, background) when the caller
     has it already (default: :func:`sim_look`), ``capsules`` the whole sequence's arm
-    capsules (:func:`render.capsules.sequence_capsules`).
+    capsules (``seq.capsules``).
     """
     texture, background = look if look is not None else sim_look(spec, sim)
     return renderer_for(spec).render_clip(
@@ -181,7 +180,7 @@ def render_unit(
     ``layers`` holds the render passes and the clip's background when ``store_passes``;
     ``on_clip()`` is called after each clip (progress).
     """
-    capsules = sequence_capsules(seq)
+    capsules = seq.capsules
     preset = spec.preset
     out: dict[str, list] = {split: [] for split in SPLITS}
     for b, sim in enumerate(unit.sims):

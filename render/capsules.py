@@ -2,10 +2,9 @@
 
 Capsules arrive as rows ``[p0 (3), p1 (3), radius]`` [m], the layout of
 ``SimControl.capsules``. :func:`capsule_mesh` makes a z-aligned capsule centred at the
-origin (trimesh), :func:`capsule_pose` the rigid transform that places it between two end
-points, and :func:`sequence_capsules` recovers the arm's capsules at every recorded frame of
-an arm-scene :class:`simulator.sequence.MeshSequence` by re-running the scene's own driver
-(no duplicated kinematics). Only :func:`sequence_capsules` imports the simulator (and torch).
+origin (trimesh) and :func:`capsule_pose` the rigid transform that places it between two end
+points. The capsules of every recorded frame travel in the mesh sequence
+(``MeshSequence.capsules``), so drawing the arm never rebuilds its scene.
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ import math
 import numpy as np
 import trimesh
 
-__all__ = ["capsule_mesh", "capsule_pose", "sequence_capsules"]
+__all__ = ["capsule_mesh", "capsule_pose"]
 
 
 def capsule_mesh(length: float, radius: float, *, segments: int = 24) -> trimesh.Trimesh:
@@ -66,40 +65,3 @@ def capsule_pose(p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     pose[:3, :3] = np.eye(3) + vx + vx @ vx / (1.0 + cos)
     return pose
-
-
-def sequence_capsules(seq) -> np.ndarray | None:
-    """The arm's capsules at each recorded frame of a mesh sequence.
-
-    Frame k of :func:`simulator.cloth.rollout.simulate` is recorded at time
-    ``record_start_time + k * substeps * dt``; the capsules are the scene driver's at that
-    time.
-
-    Args:
-        seq: A :class:`simulator.sequence.MeshSequence`.
-
-    Returns:
-        Capsules ``[p0, p1, radius]`` [m], float32, shape (B, K, C, 7); ``None`` for scenes
-        without an arm.
-    """
-    if seq.meta.get("scene") != "arm":
-        return None
-    import torch
-
-    from simulator.cloth.material import ClothMaterial
-    from simulator.cloth.scenes import ScenarioArmBend
-
-    scenario = ScenarioArmBend(**seq.meta["scenario"])
-    batch = seq.pos.shape[0]
-    material = ClothMaterial.from_classes([0] * batch)
-    _, state, driver = scenario.build(material, seeds=list(range(batch)))
-    sim = seq.meta["sim"]
-    dt, substeps = float(sim["dt"]), int(sim["substeps"])
-    start = seq.meta.get("record_start_time")
-    if start is None:  # sequences written before record_start_time existed
-        start = round(float(seq.meta["settle_time"]) / dt) * dt
-    frames = []
-    for k in range(seq.frame_count):
-        time = float(start) + k * substeps * dt
-        frames.append(driver.control(time, state.pos).capsules.to(torch.float32).numpy())
-    return np.stack(frames, axis=1)

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse
 
 from .camera import CameraSpec
-from .capsules import capsule_mesh, capsule_pose, sequence_capsules
+from .capsules import capsule_mesh, capsule_pose
 from .effects import VisualEffects, apply_image_effects, effect_streams, shake_offsets
 from .lights import LightSpec
 
@@ -399,10 +399,8 @@ class ClothRenderer:
             texture: As in :meth:`render_clip`.
             background: As in :meth:`render_clip`.
             rng: As in :meth:`render_clip`.
-            capsules: The arm's capsules of all instances, shape (B, K, C, 7), as
-                :func:`render.capsules.sequence_capsules` returns them; computed here when
-                ``None`` (about 0.2 s: it rebuilds the scene's driver), so pass them in when
-                rendering several instances of one arm sequence. Other scenes have none.
+            capsules: The arm's capsules of all instances, shape (B, K, C, 7); ``None``: the
+                ones the sequence recorded (``seq.capsules``). Other scenes have none.
 
         Returns:
             Frames, uint8 RGB, shape (K, H, W, 3).
@@ -410,7 +408,12 @@ class ClothRenderer:
         if not 0 <= instance < seq.pos.shape[0]:
             raise ValueError(f"instance must be in [0, {seq.pos.shape[0] - 1}], got {instance}")
         if capsules is None:
-            capsules = sequence_capsules(seq)
+            capsules = seq.capsules
+        if capsules is None and seq.meta.get("scene") == "arm":
+            raise ValueError(
+                "this arm sequence carries no capsules (written before sequences recorded "
+                "them); load it through simulator.cloth.rollout.with_capsules, or re-simulate"
+            )
         return self.render_clip(
             seq.pos[instance],
             seq.tri_indices,

@@ -21,7 +21,6 @@ from datasets.generation import render_frames, simulate_unit
 from datasets.plan import WorkUnit, plan_units
 from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
-from render.capsules import sequence_capsules
 from simulator.cloth.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
 
 __all__ = ["ClipSet", "diagnosis_spec", "prior_materials", "real_clips", "simulated_clips"]
@@ -146,7 +145,7 @@ def simulated_clips(
         p, k = prior_materials(spec, unit)
         seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k))  # cached by physics
         # key and materials: a visual candidate re-renders the nominal meshes
-        capsules = sequence_capsules(seq)
+        capsules = seq.capsules
         start, stop = spec.lead_in_frames, spec.frames_per_sim
         for b, sim in enumerate(unit.sims):
             frames, coverage = render_frames(

@@ -198,7 +198,6 @@ def seal_set(
             (``(1, 1)``: every video at the training data's density).
     """
     from datasets.generation import render_frames
-    from render.capsules import sequence_capsules
     from simulator.cloth.rollout import simulate
 
     check_int("seed", seed, low=0)
@@ -248,7 +247,7 @@ def seal_set(
             plan = SimulationPlan(-1, i, sim_seeds[i], winds[i], "test")
             frames, _ = render_frames(
                 spec, seq, b, plan, spec.lead_in_frames, frame_count,
-                capsules=sequence_capsules(seq),
+                capsules=seq.capsules,
                 rng=np.random.default_rng([sim_seeds[i], _SEAL_STREAM, 2]),
             )  # fmt: skip
             for effect in answer["effects"]:

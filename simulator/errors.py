@@ -403,3 +403,18 @@ def _range_text(low, high, low_open: bool = False) -> str:
     if high is not None:
         return f" <= {high}"
     return ""
+
+def switches_from_dict(cls, values, label: str):
+    """Instantiate the switch dataclass ``cls`` from a mapping, rejecting unknown keys.
+
+    Shared by the physical switches (:mod:`simulator.cloth.effects`) and the visual ones
+    (:mod:`render.effects`).
+
+    The error names the unknown keys and the allowed ones, prefixed by ``label``.
+    """
+    values = dict(values or {})
+    allowed = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise ValueError(f"{label}: unknown {unknown}; allowed: {sorted(allowed)}")
+    return cls(**values)

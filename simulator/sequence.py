@@ -5,6 +5,9 @@ File format (``.npz``, written atomically, never containing NaN):
 * ``pos`` float32 (B, K, V, 3): vertex positions [m] per instance and frame;
 * ``tri_indices`` int64 (F, 3); ``uv`` float32 (V, 2): material coordinates [m];
 * ``fps`` float64 scalar; ``seeds``, ``labels`` (class id, -1 if none), ``wind_levels`` int64 (B,);
+* ``capsules`` float32 (B, K, C, 7), only for scenes with kinematic obstacles (the arm): the
+  capsules ``[p0 (3), p1 (3), radius]`` [m] at every recorded frame, so a renderer draws what
+  was simulated without rebuilding the scene;
 * ``meta_json``: UTF-8 JSON with the scene, scenario parameters, effects, solver
   settings and per-instance material values (``schema_version`` inside).
 """
@@ -59,6 +62,9 @@ class MeshSequence:
     labels: list[int]
     wind_levels: list[int]
     meta: dict
+    capsules: np.ndarray | None = None
+    """Kinematic obstacles per frame ``[p0, p1, radius]`` [m], float32, shape (B, K, C, 7);
+    ``None`` for scenes without any."""
 
     @property
     def frame_count(self) -> int:
@@ -69,6 +75,16 @@ class MeshSequence:
         """Write the ``.npz`` atomically; refuses non-finite positions."""
         if not np.isfinite(self.pos).all():
             raise ValueError("MeshSequence.pos contains NaN/inf; refusing to write it")
+        extra = {}
+        if self.capsules is not None:
+            if self.capsules.shape[:2] != self.pos.shape[:2] or self.capsules.shape[-1] != 7:
+                raise ValueError(
+                    f"MeshSequence.capsules must have shape (B, K, C, 7) = "
+                    f"{(*self.pos.shape[:2], 'C', 7)}, got {self.capsules.shape}"
+                )
+            if not np.isfinite(self.capsules).all():
+                raise ValueError("MeshSequence.capsules contains NaN/inf; refusing to write it")
+            extra["capsules"] = self.capsules.astype(np.float32)
         import io
 
         buffer = io.BytesIO()
@@ -83,6 +99,7 @@ class MeshSequence:
             labels=np.asarray(self.labels, dtype=np.int64),
             wind_levels=np.asarray(self.wind_levels, dtype=np.int64),
             meta_json=np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8),
+            **extra,
         )
         path = Path(path)
         atomic_write_bytes(path, buffer.getvalue())
@@ -106,6 +123,7 @@ class MeshSequence:
                 labels=data["labels"].tolist(),
                 wind_levels=data["wind_levels"].tolist(),
                 meta=meta,
+                capsules=data["capsules"] if "capsules" in data.files else None,
             )
 
     def export(self, out_dir: str | Path, *, instance: int = 0, fmt: str = "obj") -> list[Path]:

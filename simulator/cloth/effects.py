@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 
-__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength", "switches_from_dict"]
+from simulator.errors import switches_from_dict
+
+__all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength"]
 
 
 def strength(
@@ -86,17 +88,6 @@ class PhysicsEffects:
         return switches_from_dict(PhysicsEffects, values, "effects")
 
 
-def switches_from_dict(cls, values, label: str):
-    """Instantiate the switch dataclass ``cls`` from a mapping, rejecting unknown keys.
-
-    The error names the unknown keys and the allowed ones, prefixed by ``label``.
-    """
-    values = dict(values or {})
-    allowed = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - allowed)
-    if unknown:
-        raise ValueError(f"{label}: unknown {unknown}; allowed: {sorted(allowed)}")
-    return cls(**values)
 
 
 PHYSICS_EFFECT_NAMES: tuple[str, ...] = tuple(

@@ -6,6 +6,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 
+import numpy as np
 import torch
 
 from simulator.cloth.effects import PhysicsEffects
@@ -16,7 +17,7 @@ from simulator.kernels import BACKENDS, resolve_backend
 from simulator.sequence import MeshSequence
 from simulator.solvers.newton import NewtonSettings
 
-__all__ = ["SimSettings", "simulate"]
+__all__ = ["SimSettings", "replay_capsules", "simulate", "with_capsules"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,6 +141,7 @@ def simulate(
         model, forces=(*model.forces, AirDamping(coefficient=settings.settle_damping))
     )
     frames = [] if settle_steps else [state.pos.float().cpu()]
+    capsules = [] if settle_steps else [driver.control(0.0, state.pos).capsules]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -162,6 +164,7 @@ def simulate(
             state = _static_polish(model, state, control, newton.backend)
         if step >= settle_steps and (step - settle_steps) % substeps == 0:
             frames.append(state.pos.float().cpu())
+            capsules.append(control.capsules)
         if bar is not None:
             bar.update(1)
         if on_step is not None:
@@ -198,7 +201,49 @@ def simulate(
         labels=[int(x) for x in labels] if labels is not None else [-1] * batch,
         wind_levels=[int(w) for w in wind_levels],
         meta=meta,
+        capsules=_stack_capsules(capsules),
     )
+
+
+def _stack_capsules(frames: list) -> np.ndarray | None:
+    """Per-frame (B, C, 7) capsule tensors -> float32 (B, K, C, 7); ``None`` without any."""
+    if not frames or frames[0] is None or frames[0].shape[1] == 0:
+        return None
+    return torch.stack([c.float().cpu() for c in frames], dim=1).numpy()
+
+
+def replay_capsules(seq: MeshSequence) -> np.ndarray | None:
+    """The arm's capsules at each recorded frame, replayed from the scene's own driver.
+
+    For sequences written before :func:`simulate` recorded them. Frame k is recorded at
+    ``record_start_time + k * substeps * dt``; float32, shape (B, K, C, 7); ``None`` for
+    scenes without an arm.
+    """
+    if seq.meta.get("scene") != "arm":
+        return None
+    from simulator.cloth.scenes import ScenarioArmBend
+
+    scenario = ScenarioArmBend(**seq.meta["scenario"])
+    batch = seq.pos.shape[0]
+    material = ClothMaterial.from_classes([0] * batch)
+    _, state, driver = scenario.build(material, seeds=list(range(batch)))
+    sim = seq.meta["sim"]
+    dt, substeps = float(sim["dt"]), int(sim["substeps"])
+    start = seq.meta.get("record_start_time")
+    if start is None:  # sequences written before record_start_time existed
+        start = round(float(seq.meta["settle_time"]) / dt) * dt
+    frames = [
+        driver.control(float(start) + k * substeps * dt, state.pos).capsules
+        for k in range(seq.frame_count)
+    ]
+    return _stack_capsules(frames)
+
+
+def with_capsules(seq: MeshSequence) -> MeshSequence:
+    """``seq`` with its obstacles filled in when it was written without them (older files)."""
+    if seq.capsules is not None or seq.meta.get("scene") != "arm":
+        return seq
+    return dataclasses.replace(seq, capsules=replay_capsules(seq))
 
 
 def _static_polish(model, state, control, backend: str):

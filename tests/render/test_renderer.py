@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from render.camera import CameraSpec
-from render.capsules import capsule_pose, sequence_capsules
+from render.capsules import capsule_pose
 from render.effects import EFFECT_NAMES, RENDER_EFFECTS, VisualEffects
 from render.lights import LightFrame, LightSpec
 from render.renderer import ClothRenderer
@@ -250,24 +250,19 @@ def _arm_sequence(frame_count=11):
     )
 
 
-def test_sequence_capsules_follow_the_arm_driver():
-    capsules = sequence_capsules(_arm_sequence())
-    assert capsules.shape == (1, 11, 2, 7)
-    np.testing.assert_allclose(capsules[0, 0, 1, 3:6], [0.28, 0.0, 1.0], atol=1e-5)  # straight
-    np.testing.assert_allclose(capsules[0, -1, 1, 3:6], [0.0, 0.0, 1.28], atol=1e-5)  # flexed
-    np.testing.assert_allclose(capsules[0, :, 0, 6], 0.045, atol=1e-7)
-    wind = dataclasses.replace(_arm_sequence(2), meta={"scene": "wind"})
-    assert sequence_capsules(wind) is None
-
-
 def test_render_sequence_draws_the_arm():
-    seq = _arm_sequence(3)
+    from simulator.cloth.rollout import with_capsules
+
+    bare_seq = _arm_sequence(3)
+    seq = with_capsules(bare_seq)
     with ClothRenderer(CameraSpec.arm(48, 48)) as r:
         frames = r.render_sequence(seq, 0, WHITE, _background(), _rng())
         given = r.render_sequence(
-            seq, 0, WHITE, _background(), _rng(), capsules=sequence_capsules(seq)
+            bare_seq, 0, WHITE, _background(), _rng(), capsules=seq.capsules
         )
         np.testing.assert_array_equal(given, frames)
+        with pytest.raises(ValueError, match="carries no capsules"):
+            r.render_sequence(bare_seq, 0, WHITE, _background(), _rng())
         bare = r.render_clip(seq.pos[0], seq.tri_indices, seq.uv, WHITE, _background(), rng=_rng())
         with pytest.raises(ValueError, match="instance"):
             r.render_sequence(seq, 1, WHITE, None, _rng())

@@ -11,7 +11,7 @@ import yaml
 from simulator.cloth.effects import PHYSICS_EFFECT_NAMES, PhysicsEffects
 from simulator.cloth.material import CLASS_COUNT, ClothMaterial, load_wang_material
 from simulator.cloth.model import build_cloth_model
-from simulator.cloth.rollout import SimSettings, simulate
+from simulator.cloth.rollout import SimSettings, replay_capsules, simulate, with_capsules
 from simulator.cloth.scenes import ScenarioArmBend, ScenarioWind, stroke_profile
 from simulator.cloth.sensitivity import bend_test, stretch_test
 from simulator.integrators import IntegratorBackwardEuler, SimulationDiverged
@@ -117,6 +117,43 @@ def test_sequence_round_trip_and_export(tmp_path):
     with pytest.raises(ValueError, match="NaN"):
         bad.save(tmp_path / "nan.npz")
     assert not (tmp_path / "nan.npz").exists()
+
+
+def test_arm_sequences_carry_the_capsules_the_driver_moved(tmp_path):
+    """The recorded obstacles equal a replay of the scene's driver at the frame times (the
+    reference), survive a round trip, and wind sequences have none."""
+    scene = ScenarioArmBend(resolution_level=1, settle_time=0.1)
+    seq = _run(scene, [3, 50], record_time=0.3)
+    assert seq.capsules.shape == (2, seq.frame_count, 2, 7) and seq.capsules.dtype == np.float32
+    replayed = replay_capsules(seq)
+    np.testing.assert_array_equal(seq.capsules, replayed)
+    assert not np.array_equal(seq.capsules[:, 0], seq.capsules[:, -1])  # the arm moved
+    loaded = MeshSequence.load(seq.save(tmp_path / "arm.npz"))
+    np.testing.assert_array_equal(loaded.capsules, seq.capsules)
+    older = dataclasses.replace(seq, capsules=None)  # a file written before capsules were kept
+    np.testing.assert_array_equal(with_capsules(older).capsules, seq.capsules)
+    wind = _run(ScenarioWind(resolution_level=1, settle_time=0.05), [7], record_time=0.1)
+    assert wind.capsules is None and replay_capsules(wind) is None
+    with pytest.raises(ValueError, match="capsules"):
+        dataclasses.replace(seq, capsules=seq.capsules[:, :1]).save(tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()
+
+
+def test_replayed_capsules_follow_the_arm_stroke():
+    scenario = ScenarioArmBend(resolution_level=1)
+    mesh = scenario.mesh()
+    pos = mesh.vert_pos.float().numpy()
+    seq = MeshSequence(
+        pos=np.broadcast_to(pos, (1, 11, *pos.shape)).copy(), tri_indices=mesh.tri_indices.numpy(),
+        uv=mesh.uv.float().numpy(), fps=10.0, seeds=[0], labels=[-1], wind_levels=[0],
+        meta={"scene": "arm", "scenario": dataclasses.asdict(scenario),
+              "sim": {"dt": 0.005, "substeps": 20}, "settle_time": scenario.settle_time},
+    )  # fmt: skip
+    capsules = replay_capsules(seq)
+    assert capsules.shape == (1, 11, 2, 7)
+    np.testing.assert_allclose(capsules[0, 0, 1, 3:6], [0.28, 0.0, 1.0], atol=1e-5)  # straight
+    np.testing.assert_allclose(capsules[0, -1, 1, 3:6], [0.0, 0.0, 1.28], atol=1e-5)  # flexed
+    np.testing.assert_allclose(capsules[0, :, 0, 6], 0.045, atol=1e-7)
 
 
 @pytest.mark.parametrize("effect", [e for e in PHYSICS_EFFECT_NAMES if e != "self_collision"])
