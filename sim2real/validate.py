@@ -112,7 +112,7 @@ def summarise(rows: list[dict]) -> dict:
         out[key] = float(np.mean(taus)) if taus else None
         out[f"{key}_n"] = len(taus)
     out["detected"], out["detected_n"] = rate("detected", ("single", "pair"))
-    found = [r for r in rows if r.get("detected")]
+    found = [r for r in rows if r.get("detected") and "top1" in r]  # library effects only
     out["top1_detected"], out["top1_detected_n"] = (
         (float(np.mean([r["top1"] for r in found])), len(found)) if found else (None, 0)
     )

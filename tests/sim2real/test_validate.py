@@ -91,7 +91,9 @@ def test_the_summary_counts_detection_and_top1_where_a_gap_was_found():
                     _answer("visual.sensor_noise"))  # fmt: skip
     missed = score_set(_result("visual.sensor_noise", explained=False) | {"scored_rungs": []},
                        _answer("visual.sensor_noise"))  # fmt: skip
-    summary = summarise([hit, missed])
+    open_set = score_set(_result("visual.sensor_noise") | {"scored_rungs": ["pixel"]},
+                         _answer("vignetting", kind="open", library=False))  # fmt: skip
+    summary = summarise([hit, missed, open_set])  # an open set has no effect to rank
     assert summary["detected"] == 0.5 and summary["detected_n"] == 2
     assert summary["top1_detected"] == 1.0 and summary["top1_detected_n"] == 1
     assert summary["top1"] == 0.5
