@@ -1,10 +1,11 @@
 """Hydra entry point of training (configs/train.yaml), shaped like the lightning-hydra template.
 
-``python train.py experiment=wind_L1_random_cnn_lstm`` trains on a generated dataset, keeps
-the best-validation-accuracy checkpoint, then evaluates it on the test split
-(:func:`models.evaluate.evaluate_simulated`: JSON + Markdown + confusion PNG in the run's
-``eval/``). The run folder is fixed per experiment (``logs/train/<run_name>``), so running
-the command again resumes from ``last.ckpt``; a finished run is only re-evaluated.
+``python train.py experiment=train/cnn_lstm dataset=wind protocol=simulation`` trains a method
+(``configs/experiment/train/``) on a generated dataset (``configs/dataset/``) under a split
+protocol (``configs/protocol/``), keeps the best-validation-accuracy checkpoint, then evaluates it
+on the test split (:func:`models.evaluate.evaluate_simulated`: JSON + Markdown + confusion PNG
+in the run's ``eval/``). The run folder is fixed per experiment (``logs/train/<run_name>``), so
+running the command again resumes from ``last.ckpt``; a finished run is only re-evaluated.
 
 A run's identity includes its dataset: ``dataset.json`` in the run folder records the data
 folders and the sha256 of their ``manifest.json`` when the run starts, and a later command

@@ -71,6 +71,11 @@ def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> Da
     """
     with config_errors():
         motion = check_choice(cfg.motion, "motion", sorted(MOTIONS))
+        if not OmegaConf.is_dict(cfg.scenario):  # e.g. scenario=arm_bend: the motion picks it
+            raise InputError(
+                "scenario must be a scene's fields (scenario.<field>=...); the motion picks the "
+                f"scene: motion=wind or motion=arm (configs/motion/), got {cfg.scenario!r}"
+            )
         check_int(cfg.level, "level", min(RESOLUTION_LEVELS), max(RESOLUTION_LEVELS))
         texture = check_choice(cfg.texture, "texture", [m.value for m in TextureMode])
         classes = cfg.classes

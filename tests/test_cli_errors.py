@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
 
 import benchmarks.thesis.tissue_jobs as tissue_entry
 import sim2real.diagnose as diagnose_entry
@@ -45,6 +46,7 @@ def _refuse_to_simulate(*args, **kwargs):
         ("sim.device=tpu", "sim.device must be one of auto, cpu, cuda, cuda:N; got 'tpu'"),
         ("+sim.fast=true", "sim.fast is not a field of sim; allowed: max_dt"),
         ("scenario.resolution_level=7", "scenario.resolution_level must be one of [1, 2, 3]"),
+        ("scenario=wind", "scenario must be a scene's fields (scenario.<field>=...); pick"),
         ("effects.aero_lift=maybe", "effects.aero_lift must be true or false, got 'maybe'"),
         ("threads=0", "threads must be an integer >= 1 or null"),
     ],
@@ -179,12 +181,22 @@ def test_entry_points_print_one_line_and_exit_2(command, line, tmp_path):
     assert [p for p in written if p.suffix != ".log"] == []  # Hydra's log file only
 
 
-EXPERIMENTS = sorted(p.stem for p in (ROOT / "configs" / "experiment").glob("*.yaml"))
+def _options(group):
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        return sorted(GlobalHydra.instance().config_loader().get_group_options(group))
 
 
-@pytest.mark.parametrize("experiment", EXPERIMENTS)
+EXPERIMENTS = [  # every method on every dataset under every split protocol, and the recipes
+    (f"experiment=train/{method}", f"dataset={dataset}", f"protocol={protocol}")
+    for method in _options("experiment/train")
+    for dataset in _options("dataset")
+    for protocol in _options("protocol")
+] + [(f"experiment=recipe/{recipe}",) for recipe in _options("experiment/recipe")]
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS, ids=" ".join)
 def test_every_training_experiment_passes_the_field_checks(experiment):
-    train_entry._check_fields(_compose("train", f"experiment={experiment}", "trainer=cpu",
+    train_entry._check_fields(_compose("train", *experiment, "trainer=cpu",
                                        "paths.output_dir=/tmp/unused"))  # fmt: skip
 
 
@@ -198,9 +210,9 @@ def test_generation_presets_pass_the_field_checks(motion, preset):
     assert _run_fields(cfg)["n_jobs"] >= 1
 
 
-@pytest.mark.parametrize("scenario", ["wind", "arm_bend"])
-def test_simulate_scenarios_pass_the_field_checks(scenario):
+@pytest.mark.parametrize("scene", ["wind", "arm_bend"])
+def test_simulate_scenarios_pass_the_field_checks(scene):
     fields = simulate_entry._checked(
-        _compose("simulate", f"scenario={scenario}", "paths.output_dir=/tmp/unused")
+        _compose("simulate", f"scene={scene}", "paths.output_dir=/tmp/unused")
     )
     assert fields["classes"] == (0, 26, 53) and fields["export"] is None

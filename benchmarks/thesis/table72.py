@@ -2,8 +2,8 @@
 
 ``python -m benchmarks.thesis.table72`` reads
 ``logs/train/<dataset>[-seq]-<method>/eval/sim_test.json`` of the wind and arm datasets (the
-runs of ``configs/experiment/*_L1_random_*.yaml``; ``-seq``: the thesis's sub-sequence split,
-``*_seq.yaml``), copies each into the results ledger ``reports/runs/<run name>.json``
+runs of ``python train.py -m experiment=train/<method> dataset=wind,arm``; ``-seq``: the
+thesis's sub-sequence split, ``protocol=sequence``), copies each into the results ledger ``reports/runs/<run name>.json``
 (committed: run folders are not, so a fresh checkout rebuilds the same table from the ledger)
 and writes ``docs/results/table72.md`` (``--out``); with
 ``--readme FILE`` it also replaces the block between ``<!-- table72:start -->`` and

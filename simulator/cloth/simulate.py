@@ -1,6 +1,6 @@
 """Hydra entry point: simulate subspace classes in a scene and save the mesh sequence.
 
-``python -m simulator.cloth.simulate scenario=wind classes=[0,26,53]`` writes
+``python -m simulator.cloth.simulate scene=wind classes=[0,26,53]`` writes
 ``sequence.npz`` (format in :mod:`simulator.sequence`) into the run directory
 and, with ``export=obj``, a frame series of the first instance.
 
@@ -53,6 +53,11 @@ def _checked(cfg: DictConfig) -> dict:
         if export is not None and export not in EXPORT_FORMATS:
             raise InputError(
                 f"export must be one of {', '.join(EXPORT_FORMATS)} or null, got {export!r}"
+            )
+        if not OmegaConf.is_dict(cfg.scenario):  # e.g. scenario=wind, the group's old name
+            raise InputError(
+                "scenario must be a scene's fields (scenario.<field>=...); pick the scene with "
+                f"scene=wind or scene=arm_bend (configs/scene/), got {cfg.scenario!r}"
             )
         for name in ("sim", "scenario", "effects"):
             check_node(OmegaConf.to_container(cfg[name], resolve=True), name)

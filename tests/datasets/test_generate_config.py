@@ -58,6 +58,7 @@ def test_unknown_motion_is_named():
         (["seed=abc"], "seed must be an integer >= 0, got 'abc'"),
         (["render.camera.width=abc"], "render.camera.width must be an integer, got 'abc'"),
         (["sim.max_dt=fast"], "sim.max_dt must be a number, got 'fast'"),
+        (["scenario=arm_bend"], r"scenario must be a scene's fields .* motion=wind or motion=arm"),
     ],
 )
 def test_bad_values_are_named(overrides, field):

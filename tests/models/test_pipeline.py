@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import MissingConfigException
 from hydra.utils import instantiate
 
@@ -14,7 +15,6 @@ from models.evaluate import run as evaluate_run
 from models.material_classifier import load_classifier
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
-EXPERIMENTS = sorted(p.stem for p in Path(CONFIGS, "experiment").glob("*.yaml"))
 FAST = [
     "encoder.width=0.25", "encoder.feature_dim=16",
     "data.batch_size=2", "data.num_workers=0", "trainer.max_epochs=2", "~logger",
@@ -27,6 +27,12 @@ def _compose(config="train", overrides=(), hydra=False):
         return compose(config_name=config, overrides=list(overrides), return_hydra_config=hydra)
 
 
+def _options(group):
+    """The options of a config group (``experiment/train``: one experiment per method)."""
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        return sorted(GlobalHydra.instance().config_loader().get_group_options(group))
+
+
 def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
     return _compose("train", [
         f"dataset.dir={data_dir}", f"paths.output_dir={out_dir}",
@@ -35,23 +41,28 @@ def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
     ])  # fmt: skip
 
 
-@pytest.mark.parametrize("experiment", EXPERIMENTS)
-def test_every_experiment_composes_and_builds_its_model(experiment):
-    cfg = _compose("train", [f"experiment={experiment}", "paths.output_dir=/tmp/x"], hydra=True)
-    sequence = experiment.endswith("_seq")  # thesis sub-sequence split: a run folder of its own
-    swap = experiment.endswith("_2s")  # the two-stream model trains with background swap
-    tag = "-seq" if sequence else "-bgswap" if swap else ""
+@pytest.mark.parametrize("protocol", _options("protocol"))
+@pytest.mark.parametrize("dataset", _options("dataset"))
+@pytest.mark.parametrize("method", _options("experiment/train"))
+def test_every_experiment_composes_and_builds_its_model(method, dataset, protocol):
+    overrides = [f"experiment=train/{method}", f"dataset={dataset}", f"protocol={protocol}"]
+    cfg = _compose("train", [*overrides, "paths.output_dir=/tmp/x"], hydra=True)
+    sequence = protocol == "sequence"  # thesis sub-sequence split: a run folder of its own
+    swap = method == "cnn_lstm_2s"  # the two-stream model trains with background swap
+    split_tag = "-seq" if sequence else ""
+    tag = split_tag + ("-bgswap" if swap else "")
+    assert cfg.model.method == method
     assert cfg.run_name == f"{cfg.dataset.name}{tag}-{cfg.model.method}"
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
     assert cfg.data.split_protocol == ("sequence" if sequence else "simulation")
-    assert cfg.dataset.name.startswith(experiment.split("_")[0])
+    assert cfg.dataset.name.startswith(dataset) and cfg.dataset.motion == dataset
     if cfg.model.method in ("base2", "cnn_lstm_ft", "cnn_lstm_2s"):  # baseline 1's CNN first
         assert f"/train/{cfg.dataset.name}{tag}-base1/" in cfg.model.net.encoder_checkpoint
         assert cfg.model.net.freeze_encoder == (cfg.model.method == "base2")
     if cfg.model.method == "cnn_lstm_2s":  # its motion stream starts from the Diff-V run's CNN
         assert cfg.model.net.inputs == "two_stream" and cfg.model.net.motion_encoder.fc6_norm
         motion = cfg.model.net.motion_encoder_checkpoint
-        assert f"/train/{cfg.dataset.name}-cnn_lstm_diff/" in motion
+        assert f"/train/{cfg.dataset.name}{split_tag}-cnn_lstm_diff/" in motion
         cfg.model.net.motion_encoder_checkpoint = None
     assert cfg.model.net.encoder.fc6_norm  # every method: BatchNorm keeps fc6's units alive
     assert cfg.data.background_swap.prob == (1.0 if swap else 0.0)  # or variant=bgswap
@@ -64,14 +75,43 @@ def test_every_experiment_composes_and_builds_its_model(experiment):
     assert module(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
 
 
-@pytest.mark.parametrize("variant", ["bgswap", "texswap"])
-@pytest.mark.parametrize("experiment", ["wind_L1_random_base2", "arm_L1_random_cnn_lstm_ft"])
-def test_swap_variants_have_runs_of_their_own(experiment, variant):
-    cfg = _compose("train", [f"experiment={experiment}", f"variant={variant}",
-                             "paths.output_dir=/tmp/x"], hydra=True)  # fmt: skip
-    assert cfg.run_name == f"{cfg.dataset.name}-{variant}-{cfg.model.method}"
+@pytest.mark.parametrize(
+    ("method", "epochs", "encoder_lr_scale"),
+    [("base1", 15, 1.0), ("base2", 5, 1.0), ("cnn_lstm_ft", 10, 0.1), ("cnn_lstm", 20, 1.0)],
+)
+def test_the_sequence_protocol_sets_each_methods_schedule(method, epochs, encoder_lr_scale):
+    for dataset in _options("dataset"):
+        cfg = _compose("train", [f"experiment=train/{method}", f"dataset={dataset}",
+                                 "protocol=sequence", "paths.output_dir=/tmp/x"])  # fmt: skip
+        assert cfg.trainer.max_epochs == epochs
+        assert cfg.model.encoder_lr_scale == encoder_lr_scale
+        held_out = _compose("train", [f"experiment=train/{method}", f"dataset={dataset}",
+                                      "paths.output_dir=/tmp/x"])  # fmt: skip
+        assert held_out.trainer.max_epochs == 20 and held_out.model.encoder_lr_scale == 1.0
+
+
+def test_the_readme_recipe_is_diff_v_on_the_wind_grid_data():
+    assert "wind_grid_diff" in _options("experiment/recipe")
+    cfg = _compose("train", ["experiment=recipe/wind_grid_diff", "paths.output_dir=/tmp/x"],
+                   hydra=True)  # fmt: skip
+    assert cfg.run_name == "wind-L1-grid-full-s0-cnn_lstm_diff"
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
-    assert f"/train/{cfg.dataset.name}-{variant}-base1/" in cfg.model.net.encoder_checkpoint
+    assert cfg.data.split_protocol == "simulation" and cfg.trainer.max_epochs == 20
+    assert list(cfg.data.augment.crop_scale) == [1.0, 1.0] and cfg.data.augment.flip_prob == 0
+    assert instantiate(cfg.model)(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
+
+
+@pytest.mark.parametrize("protocol", _options("protocol"))
+@pytest.mark.parametrize("variant", ["bgswap", "texswap"])
+@pytest.mark.parametrize(("method", "dataset"), [("base2", "wind"), ("cnn_lstm_ft", "arm")])
+def test_swap_variants_have_runs_of_their_own(method, dataset, variant, protocol):
+    cfg = _compose("train", [f"experiment=train/{method}", f"dataset={dataset}",
+                             f"protocol={protocol}", f"variant={variant}",
+                             "paths.output_dir=/tmp/x"], hydra=True)  # fmt: skip
+    tag = ("-seq" if protocol == "sequence" else "") + f"-{variant}"  # apart from -seq, -<variant>
+    assert cfg.run_name == f"{cfg.dataset.name}{tag}-{cfg.model.method}"
+    assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
+    assert f"/train/{cfg.dataset.name}{tag}-base1/" in cfg.model.net.encoder_checkpoint
     assert instantiate(cfg.data.background_swap).prob == 1.0  # both swap backgrounds
     assert instantiate(cfg.data.texture_swap).prob == (1.0 if variant == "texswap" else 0.0)
 

@@ -25,7 +25,7 @@ FAST = {"resolution_level": 1, "settle_time": 0.1}
 
 
 def _scenario(name, **kw):
-    cfg = yaml.safe_load((CONFIGS / "scenario" / f"{name}.yaml").read_text())
+    cfg = yaml.safe_load((CONFIGS / "scene" / f"{name}.yaml").read_text())
     target = cfg.pop("_target_")
     cls = {
         "simulator.cloth.scenes.ScenarioWind": ScenarioWind,
@@ -50,7 +50,7 @@ def _run(
     )
 
 
-@pytest.mark.parametrize("name", sorted(p.stem for p in (CONFIGS / "scenario").glob("*.yaml")))
+@pytest.mark.parametrize("name", sorted(p.stem for p in (CONFIGS / "scene").glob("*.yaml")))
 def test_every_scenario_config_runs_and_stays_sane(name):
     scene = _scenario(name, **FAST)
     seq = _run(scene, [0, 53], record_time=0.3)
