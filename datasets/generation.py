@@ -96,8 +96,9 @@ def simulate_unit(
         if path.is_file():
             try:
                 seq = with_capsules(MeshSequence.load(path))  # older files lack them
-                if seq.pos.shape[:2] == (len(unit.sims), spec.frames_per_sim):
-                    return seq
+                # A longer recording serves a shorter request (a slower camera needs more).
+                if seq.pos.shape[0] == len(unit.sims) and seq.frame_count >= spec.frames_per_sim:
+                    return seq.first_frames(spec.frames_per_sim)
             except (OSError, ValueError, KeyError) as err:
                 log.warning("ignoring unreadable mesh cache %s (%s)", path, err)
     classes = [s.class_id for s in unit.sims]
@@ -168,6 +169,32 @@ def render_frames(
     )  # fmt: skip
 
 
+def _sim_clips(spec: DatasetSpec, seq: MeshSequence, b: int, sim: SimulationPlan, capsules, look):
+    """``(frames, coverage[, passes])`` of each clip of one simulation, in order.
+
+    Each clip is rendered on its own (its own random stream); a camera with another frame
+    rate (``frame_rate``) resamples the whole recorded video once, which is then cut, so
+    its clips lie back to back in time as a real camera's do.
+    """
+    preset = spec.preset
+    if spec.visual.frame_rate:
+        frames, coverage = render_frames(
+            spec, seq, b, sim, spec.lead_in_frames, spec.frames_per_sim, capsules=capsules,
+            look=look, rng=np.random.default_rng([sim.seed, _CLIP_STREAM, 0]),
+        )  # fmt: skip
+        for k in range(preset.clips_per_sim):
+            clip = slice(k * preset.frames_per_clip, (k + 1) * preset.frames_per_clip)
+            yield frames[clip], coverage[clip]
+        return
+    for k in range(preset.clips_per_sim):
+        start = spec.lead_in_frames + k * preset.frames_per_clip
+        yield render_frames(
+            spec, seq, b, sim, start, start + preset.frames_per_clip, capsules=capsules,
+            look=look, rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
+            passes=spec.store_passes,
+        )  # fmt: skip
+
+
 def render_unit(
     spec: DatasetSpec,
     unit: WorkUnit,
@@ -181,17 +208,12 @@ def render_unit(
     ``on_clip()`` is called after each clip (progress).
     """
     capsules = seq.capsules
-    preset = spec.preset
     out: dict[str, list] = {split: [] for split in SPLITS}
     for b, sim in enumerate(unit.sims):
         texture, background = sim_look(spec, sim)
-        for k in range(preset.clips_per_sim):
-            start = spec.lead_in_frames + k * preset.frames_per_clip
-            stop = start + preset.frames_per_clip
-            frames, coverage, *passes = render_frames(
-                spec, seq, b, sim, start, stop, capsules=capsules, look=(texture, background),
-                rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]), passes=spec.store_passes,
-            )  # fmt: skip
+        for k, (frames, coverage, *passes) in enumerate(
+            _sim_clips(spec, seq, b, sim, capsules, (texture, background))
+        ):
             coverage = coverage if spec.store_coverage else None
             layers = {**passes[0], "background": background[None]} if passes else None
             shard = f"{sim.split}-{unit.name}.tar"

@@ -108,7 +108,7 @@ def clip_record(
         "seed": sim.seed,
         "sim_id": sim.sim_id,
         "clip_index": clip_index,
-        "start_frame": spec.lead_in_frames + clip_index * preset.frames_per_clip,
+        "start_frame": spec.clip_start_frame(clip_index),
         "frame_count": int(frames_shape[0]),
         "fps": preset.fps,
         "height": int(frames_shape[1]),

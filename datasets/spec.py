@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from render.camera import CameraSpec
-from render.effects import VisualEffects
+from render.effects import VisualEffects, source_frame_count
 from render.lights import LightSpec
 from render.textures import TextureMode
 from simulator.cloth.effects import PhysicsEffects
@@ -250,8 +250,27 @@ class DatasetSpec:
 
     @property
     def frames_per_sim(self) -> int:
-        """Frames recorded per simulation (lead-in + all clips, back to back)."""
-        return self.lead_in_frames + self.preset.clips_per_sim * self.preset.frames_per_clip
+        """Frames recorded per simulation: the lead-in, then all clips back to back.
+
+        The clips are counted at the camera's frame rate: a slower camera (``frame_rate``)
+        needs more recorded frames for its ``clips_per_sim`` x ``frames_per_clip`` frames.
+        """
+        return self.lead_in_frames + self.video_source_frames
+
+    @property
+    def video_source_frames(self) -> int:
+        """Recorded frames after the lead-in that the camera turns into all clips."""
+        frames = self.preset.clips_per_sim * self.preset.frames_per_clip
+        if self.visual.frame_rate:
+            return source_frame_count(frames, self.visual.frame_rate_ratio)
+        return frames
+
+    def clip_start_frame(self, clip_index: int) -> int:
+        """The recorded frame at (or just before) which clip ``clip_index`` starts."""
+        first = clip_index * self.preset.frames_per_clip
+        if self.visual.frame_rate:
+            return self.lead_in_frames + int(first / self.visual.frame_rate_ratio + 1e-9)
+        return self.lead_in_frames + first
 
     @property
     def record_time(self) -> float:

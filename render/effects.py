@@ -43,6 +43,7 @@ __all__ = [
     "resample_frame_rate",
     "resampled_frame_count",
     "shake_offsets",
+    "source_frame_count",
 ]
 
 
@@ -234,6 +235,22 @@ def _check_clip(clip: np.ndarray) -> np.ndarray:
 def resampled_frame_count(frame_count: int, ratio: float) -> int:
     """Frames :func:`resample_frame_rate` returns for ``frame_count`` input frames."""
     return math.floor((frame_count - 1) * ratio + 1e-9) + 1
+
+
+def source_frame_count(frame_count: int, ratio: float) -> int:
+    """Fewest input frames from which :func:`resample_frame_rate` makes ``frame_count`` frames.
+
+    A camera at ``ratio`` x the simulation's frame rate needs this many recorded frames for a
+    video of ``frame_count`` frames (more than ``frame_count`` when it is slower).
+    """
+    if frame_count < 1 or not ratio > 0:
+        raise ValueError(f"need frame_count >= 1 and ratio > 0, got {frame_count}, {ratio}")
+    count = math.ceil((frame_count - 1) / ratio - 1e-9) + 1
+    while count > 1 and resampled_frame_count(count - 1, ratio) >= frame_count:
+        count -= 1
+    while resampled_frame_count(count, ratio) < frame_count:
+        count += 1
+    return count
 
 
 def resample_frame_rate(

@@ -47,6 +47,7 @@ from .stats import (
 __all__ = [
     "OPEN_SET_MIN_CLOSURE",
     "CandidateResult",
+    "best_subset_values",
     "candidate_result",
     "fit_strength",
     "harmonic_mean_p",
@@ -478,6 +479,24 @@ def shapley_values(players: list[str], value: dict[frozenset, float]) -> dict[st
                 base = frozenset(subset)
                 total += weight * (value[base | {player}] - value[base])
         out[player] = total
+    return out
+
+
+def best_subset_values(value: dict[frozenset, float]) -> dict[frozenset, float]:
+    """Each coalition's worth as the best of its sub-coalitions' measured worths.
+
+    A coalition is measured with every member at its own fitted strength; a strength fitted
+    alone can overshoot once another effect closes part of the same gap, so adding a member
+    can lower the measured closure. A joint fit may always leave a member at its neutral
+    strength, so its worth is at least its best sub-coalition's: this (monotone) lower bound
+    is the game whose Shapley values are reported. ``value`` must hold every sub-coalition.
+    """
+    out = {}
+    for coalition in sorted(value, key=len):
+        best = value[coalition]
+        for member in coalition:
+            best = max(best, out[coalition - {member}])
+        out[coalition] = best
     return out
 
 

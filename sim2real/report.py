@@ -93,6 +93,7 @@ def verdict(result: dict) -> str:
             f"No candidate closes at least {100 * ranking['threshold']:.0f} % of it: "
             f"unexplained residual at stage {result['residual_stage']}."
         )
+    parts += _residual_sentences(result.get("residual"))
     shrink = result.get("shrink")
     if shrink is None:
         parts.append("How far it shrinks after retraining was not measured in this run.")
@@ -109,6 +110,19 @@ def verdict(result: dict) -> str:
             f"{_fmt(after['density']['spearman'], 2)}."
         )
     return " ".join(parts)
+
+
+def _residual_sentences(residual: dict | None) -> list[str]:
+    """What is left between R and the top candidate's best set (its own gap tests)."""
+    if not residual:
+        return []
+    added = f"With {residual['candidate']} added" + (
+        "" if residual["strength"] is None else f" at {_fmt(residual['strength'])}"
+    )
+    if residual["significant"]:
+        return [f"{added}, a significant gap remains (p {_fmt(residual['gap_p'], 2)}) on "
+                + ", ".join(residual["significant"]) + "."]  # fmt: skip
+    return [f"{added}, no significant gap remains (p {_fmt(residual['gap_p'], 2)})."]
 
 
 def _swap_sentences(result: dict) -> list[str]:
@@ -144,14 +158,20 @@ def _swap_sentences(result: dict) -> list[str]:
 def _shapley_lines(shapley: dict | None) -> list[str]:
     if not shapley:
         return []
-    rows = [[n, f"{100 * shapley['values'][n]:.0f} %"] for n in shapley["players"]]
-    rows += [[f"together: {k}", f"{100 * v:.0f} %"] for k, v in shapley["coalitions"].items()]
+    closure = shapley.get("closure", shapley["coalitions"])
+    rows = [[n, f"{100 * shapley['values'][n]:.0f} %", ""] for n in shapley["players"]]
+    rows += [[f"together: {k}", f"{100 * closure[k]:.0f} %", f"{100 * v:.0f} %"]
+             for k, v in shapley["coalitions"].items()]  # fmt: skip
     return [
-        "Interactions (exact Shapley values of the closure over coalitions of the top "
-        "candidates, each at its fitted strength; the values add up to what all of them close "
-        "together):",
+        "Interactions: exact Shapley values over coalitions of the top candidates. Each "
+        "coalition is measured with every member at its own fitted strength; as a joint fit "
+        "could leave any member at its neutral strength, a coalition is worth at least its "
+        "best sub-coalition, and the values share that worth (they add up to the largest "
+        "coalition's).",
         "",
-        markdown_table(["candidate / coalition", "Shapley value / closure"], rows),
+        markdown_table(
+            ["candidate / coalition", "Shapley value / worth", "measured together"], rows
+        ),
     ]
 
 

@@ -222,7 +222,12 @@ def seal_set(
     sim_seeds = [int(s) for s in rng.integers(1, 2**31 - 1, size=videos)]
     winds = [i % len(spec.scenario.wind_speeds) if hasattr(spec.scenario, "wind_speeds") else 0
              for i in range(videos)]  # fmt: skip
-    frame_count = spec.lead_in_frames + clips_per_video * clip_len
+    # A slower camera (frame_rate) records longer, as a real one filming the same clips does.
+    frame_count = dataclasses.replace(
+        spec, preset=dataclasses.replace(
+            spec.preset, clips_per_sim=clips_per_video, frames_per_clip=clip_len
+        )
+    ).frames_per_sim  # fmt: skip
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)

@@ -71,6 +71,17 @@ class MeshSequence:
         """K."""
         return int(self.pos.shape[1])
 
+    def first_frames(self, count: int) -> MeshSequence:
+        """The first ``count`` frames.
+
+        Stepping is causal, so a longer recording of a simulation starts with the shorter
+        one's frames: the mesh cache serves a short request from a long recording.
+        """
+        if not 1 <= count <= self.frame_count:
+            raise ValueError(f"count must be in [1, {self.frame_count}], got {count}")
+        capsules = None if self.capsules is None else self.capsules[:, :count]
+        return dataclasses.replace(self, pos=self.pos[:, :count], capsules=capsules)
+
     def save(self, path: str | Path) -> Path:
         """Write the ``.npz`` atomically; refuses non-finite positions."""
         if not np.isfinite(self.pos).all():

@@ -16,6 +16,8 @@ from datasets.clip_dataset import ClothClipDataset
 from datasets.generation import generate_dataset
 from datasets.manifest import Manifest
 from datasets.shards import ShardError
+from render.effects import VisualEffects
+from simulator.sequence import MeshSequence
 
 from .conftest import tiny_spec
 
@@ -144,6 +146,29 @@ def test_rendering_only_variant_reuses_the_mesh_cache(tmp_path, tiny_dataset):
     a = ClothClipDataset(tmp_path / "a", None).read(0)[1]
     b = ClothClipDataset(tmp_path / "b", None).read(0)[1]
     assert not np.array_equal(a, b)
+
+
+def test_a_slower_camera_records_longer_and_the_cache_serves_the_shorter_prefix(
+    tmp_path, tiny_dataset
+):
+    cache = tmp_path / "cache"
+    slow_spec = tiny_spec(visual=VisualEffects(frame_rate=True, frame_rate_ratio=0.5))
+    assert slow_spec.frames_per_sim == tiny_spec().lead_in_frames + 7  # 4 frames at half rate
+    slow = generate_dataset(slow_spec, tmp_path / "slow", mesh_cache=cache, progress=False)
+    assert slow is not None
+    (recording,) = {MeshSequence.load(p).frame_count for p in cache.rglob("*.npz")}
+    assert recording == slow_spec.frames_per_sim
+    stamps = [p.stat().st_mtime_ns for p in sorted(cache.rglob("*.npz"))]
+    nominal = generate_dataset(tiny_spec(), tmp_path / "nominal", mesh_cache=cache, progress=False)
+    assert nominal is not None  # served from the longer recording: nothing re-simulated
+    assert [p.stat().st_mtime_ns for p in sorted(cache.rglob("*.npz"))] == stamps
+    assert _tree_bytes(tmp_path / "nominal") == _tree_bytes(tiny_dataset)
+    # Output frame j of the half-rate camera shows recorded frame 2 j: its clip is 4 frames
+    # long and spans twice the time of the nominal clip.
+    slow_clip = ClothClipDataset(tmp_path / "slow", None).read(0)[1]
+    nominal_clip = ClothClipDataset(tiny_dataset, None).read(0)[1]
+    assert slow_clip.shape == nominal_clip.shape
+    np.testing.assert_array_equal(slow_clip[:2], nominal_clip[::2])
 
 
 def test_cluster_workers_split_the_units_and_the_last_writes_the_manifest(tmp_path, tiny_dataset):

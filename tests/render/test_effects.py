@@ -16,6 +16,7 @@ from render.effects import (
     resample_frame_rate,
     resampled_frame_count,
     shake_offsets,
+    source_frame_count,
 )
 from render.textures import make_texture
 
@@ -108,6 +109,17 @@ def test_frame_rate_modes():
     assert set(drop[:, 0, 0, 0].tolist()) <= {0, 100, 200}
     np.testing.assert_array_equal(resample_frame_rate(clip, 0.5, "drop")[:, 0, 0, 0], [0, 200])
     assert resampled_frame_count(61, 0.5) == 31
+
+
+@pytest.mark.parametrize("ratio", [0.3, 0.5, 0.5229, 0.875, 1.0, 1.794, 2.0, 3.0])
+def test_source_frame_count_is_the_fewest_recorded_frames_for_a_video(ratio):
+    for frames in range(1, 70):
+        source = source_frame_count(frames, ratio)
+        assert resampled_frame_count(source, ratio) >= frames
+        assert source == 1 or resampled_frame_count(source - 1, ratio) < frames
+    assert source_frame_count(30, 0.5) == 59 and source_frame_count(30, 2.0) == 16
+    with pytest.raises(ValueError, match="ratio > 0"):
+        source_frame_count(10, 0.0)
 
 
 def test_effect_streams_are_independent_of_other_switches(clip):

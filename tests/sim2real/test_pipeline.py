@@ -105,6 +105,40 @@ def test_sealed_set_holds_only_what_real_footage_has(world):
     assert len(frames) == 8 and frames[0].suffix == ".png"
 
 
+def test_a_slower_sealed_camera_films_as_many_frames_over_a_longer_time(world, tmp_path):
+    answer = {"seed": 2, "kind": "single", "effects": [
+        {"name": "visual.frame_rate", "stage": "camera", "strength": 0.5, "library": True}]}
+    seal_set(tmp_path / "slow", base=_spec(), seed=2, videos=4, clips_per_video=2, clip_len=4,
+             answer=answer)  # fmt: skip
+    for video in sorted((tmp_path / "slow").glob("v*")):
+        assert len(list(video.iterdir())) == 8  # 15 recorded frames at half the frame rate
+
+
+def test_the_fitted_strengths_of_the_top_candidates_are_added_to_be_measured():
+    from types import SimpleNamespace
+
+    from sim2real.pipeline import REFINE_TOP, _check_fits
+
+    library = candidate_library(_spec())
+    names = ["visual.sensor_noise", "visual.compression", "physics.air_damping",
+             "visual.shadows", *sorted(library)[: REFINE_TOP + 1]]  # fmt: skip
+    plan = [(library[n], library[n].strengths(3)) for n in dict.fromkeys(names)]
+    fitted = {"visual.sensor_noise": 3.016, "visual.compression": 27.4,
+              "physics.air_damping": 0.07}  # fmt: skip
+    results = [SimpleNamespace(best_score=1.0 - 0.1 * i, fitted=fitted.get(c.name))
+               for i, (c, _) in enumerate(plan)]  # fmt: skip
+    after = _check_fits(plan, results, "all")
+    checked = {c.name: v for c, v in after}
+    assert 3.016 in checked["visual.sensor_noise"]
+    assert 27 in checked["visual.compression"]  # an integer strength (JPEG quality)
+    assert 0.07 in checked["physics.air_damping"]
+    assert checked["visual.shadows"] == plan[3][1]  # a switch: nothing to fit
+    visual = {c.name: v for c, v in _check_fits(plan, results, "visual")}
+    assert 0.07 not in visual["physics.air_damping"]  # would need a simulation
+    assert _check_fits(plan, results, "none") == plan
+    assert after[REFINE_TOP:] == plan[REFINE_TOP:]  # only the top candidates
+
+
 def test_drawn_answers_cover_single_pair_and_open_kinds():
     library = candidate_library(_spec())
     kinds = {draw_answer(seed, library)["kind"] for seed in range(40)}
@@ -132,11 +166,18 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
         assert (out / name).stat().st_size > 0, name
     shapley = result["shapley"]
     assert shapley is not None and "visual.sensor_noise" in shapley["players"]
-    grand = shapley["coalitions"]["+".join(sorted(shapley["players"]))]
-    assert sum(shapley["values"].values()) == pytest.approx(grand)
+    grand = "+".join(sorted(shapley["players"]))
+    assert sum(shapley["values"].values()) == pytest.approx(shapley["closure"][grand])
+    assert shapley["closure"][grand] >= shapley["coalitions"][grand]
+    assert shapley["closure"][grand] >= noise["best_score"]
+    residual = result["residual"]  # the gap tests between R and the top's best set
+    assert residual["candidate"] == "visual.sensor_noise"
+    assert residual["strength"] in noise["strengths"]
+    assert set(residual["p_gap"]) == set(result["rungs"]) and 0 < residual["gap_p"] <= 1
     saved = json.loads((out / "report.json").read_text())
     assert saved["ranking"]["top"] == "visual.sensor_noise"
     assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
+    assert "With visual.sensor_noise added at" in (out / "report.md").read_text().split("\n")[2]
 
     # counterfactual (b): the sealed set's sensor noise is measured and emulated on S
     camera = result["counterfactuals"]["camera"]
