@@ -3,9 +3,15 @@
 ``python train.py experiment=train/cnn_lstm dataset=wind protocol=simulation`` trains a method
 (``configs/experiment/train/``) on a generated dataset (``configs/dataset/``) under a split
 protocol (``configs/protocol/``), keeps the best-validation-accuracy checkpoint, then evaluates it
-on the test split (:func:`models.evaluate.evaluate_simulated`: JSON + Markdown + confusion PNG
-in the run's ``eval/``). The run folder is fixed per experiment (``logs/train/<run_name>``), so
-running the command again resumes from ``last.ckpt``; a finished run is only re-evaluated.
+on the test split (:func:`models.evaluate.evaluate_simulated`, the entry of
+``python -m models.evaluate`` too: Lightning's ``trainer.predict``, then JSON + Markdown +
+confusion PNG in the run's ``eval/``). The run folder is fixed per experiment
+(``logs/train/<run_name>``), so running the command again resumes from ``last.ckpt``; a
+finished run is only re-evaluated.
+
+The classes come from the data: the datamodule reads its datasets' material set from their
+manifests, and the net gets its ``num_classes`` (``model.net.num_classes``) and the module its
+``class_grid`` (``model.class_grid``) from there; both are stored in the checkpoint.
 
 A run's identity includes its dataset: ``dataset.json`` in the run folder records the data
 folders and the sha256 of their ``manifest.json`` when the run starts, and a later command
@@ -192,6 +198,23 @@ def _log_early_stop(trainer) -> None:
         )  # fmt: skip
 
 
+def _labels_from_data(cfg: DictConfig, datamodule) -> None:
+    """Give the model config the data's classes: ``model.net.num_classes``, ``model.class_grid``.
+
+    A ``num_classes`` set on the command line must be the data's.
+    """
+    count = datamodule.num_classes
+    given = cfg.model.net.get("num_classes")
+    if given is not None and given != count:
+        raise InputError(
+            f"model.net.num_classes must be the data's class count {count} (its material set "
+            f"{datamodule.material_set.name}), got {given!r}; leave it out"
+        )
+    with open_dict(cfg):
+        cfg.model.net.num_classes = count
+        cfg.model.class_grid = datamodule.class_grid
+
+
 def _callbacks(cfg: DictConfig) -> list:
     return [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c is not None]
 
@@ -260,6 +283,7 @@ def train(cfg: DictConfig) -> dict:
     L.seed_everything(int(cfg.seed), workers=True)
     with config_errors():
         datamodule = instantiate(cfg.data)
+        _labels_from_data(cfg, datamodule)
         model = instantiate(cfg.model)
     model.hparams["net_config"] = OmegaConf.to_container(cfg.model.net, resolve=True)
     if init_from and cfg.train and resume is None:

@@ -33,11 +33,13 @@ def _random_run(folder: Path) -> Path:
     from hydra.utils import instantiate
 
     from models.material_classifier import MaterialClassifierModule
+    from simulator.cloth.material import CLASS_COUNT
 
     config = {
         "_target_": "models.components.video_nets.CNNLSTMNet",
         "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
                     "name": "alexnet5"},
+        "num_classes": CLASS_COUNT,
     }  # fmt: skip
     torch.manual_seed(0)
     module = MaterialClassifierModule(instantiate(config), net_config=config)

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import torch
 
+from simulator.cloth.material import CLASS_COUNT
+
 CONFIGS = str(Path(__file__).resolve().parents[1] / "configs")
 METHODS = ("cnn_lstm", "base1", "base2", "cnn_lstm_diff")
 
@@ -38,7 +40,7 @@ def _build(method: str, encoder: str):
         cfg = compose(config_name="train", overrides=overrides)
     if method == "base2":
         cfg.model.net.encoder_checkpoint = None  # random frozen encoder: same cost
-    return instantiate(cfg.model)
+    return instantiate(cfg.model, net={"num_classes": CLASS_COUNT})  # train.py: the data's
 
 
 def _sync(device: torch.device) -> None:
@@ -65,7 +67,7 @@ def measure(method: str, *, batch: int, frames: int, size: int, steps: int,
     torch.manual_seed(0)
     module = _build(method, encoder).to(device)
     video = torch.rand(batch, frames, 3, size, size, device=device)
-    labels = torch.randint(0, 54, (batch,), device=device)
+    labels = torch.randint(0, CLASS_COUNT, (batch,), device=device)
     params = [p for p in module.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=1e-3)
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=device.type == "cuda")

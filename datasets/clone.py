@@ -17,8 +17,9 @@ the recovered material hangs and folds, with a scene this repository already sim
    the clips is the video's distribution. Its argmax is the predicted class, and
    :func:`models.scores.material_scores` gives the scalar scores that evaluation correlates.
 3. **Compare.** Beside the predicted class come its two most likely *grid neighbours*: of
-   the classes one stretch or one bend step away in the 6 x 9 stretch x bend grid, the two
-   with the highest mean probability (ties: lower class id). A corner class has exactly two.
+   the classes one stretch or one bend step away in the stretch x bend grid (6 x 9 for the
+   thesis's material set; the run's training data names its set), the two with the highest
+   mean probability (ties: lower class id). A corner class has exactly two.
    So the comparison shows what one step stiffer or softer looks like, in the directions
    the model itself found most plausible (:func:`comparison_classes`).
 4. **Simulate and render** the three classes as the datasets do
@@ -29,7 +30,8 @@ the recovered material hangs and folds, with a scene this repository already sim
 Written into the run folder (``logs/clone/runs/<time>/``), all at the end (staged in a
 hidden folder there and moved into place, so a failure leaves none of them):
 
-* ``prediction.json``: the video and its clips, the 54 mean probabilities and the top 5,
+* ``prediction.json``: the video and its clips, the mean probability of each class (54 for
+  the thesis's set) and the top 5,
   the predicted class with its stretch and bend multipliers, the material scores, and the
   comparison classes with the rule that chose them;
 * ``clone.mp4``: the input beside the three simulated classes (input resampled to ``fps``,
@@ -65,15 +67,11 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from models.evaluate import check_class_count, predict
+from models.evaluate import check_class_count, module_grid, predict
 from models.material_classifier import MaterialClassifierModule, load_classifier
+from models.metrics import ClassGrid
 from models.scores import material_scores
-from simulator.cloth.material import (
-    BEND_MULTIPLIERS,
-    CLASS_COUNT,
-    class_summary,
-    multipliers_from_class,
-)
+from simulator.cloth.material import WANG54, MaterialSet
 from simulator.errors import (
     InputError,
     check_device,
@@ -106,16 +104,24 @@ from .spec import DatasetSpec, SizePreset
 
 __all__ = [
     "COMPARISON_RULE", "CloneOutputs", "Prediction", "TrainedRun", "VideoClips", "clone_sheet",
-    "clone_video", "comparison_classes", "display_frames", "find_run", "grid_neighbours",
-    "load_checked_classifier", "predict_video", "run",
+    "clone_video", "comparison_classes", "comparison_rule", "display_frames", "find_run",
+    "grid_neighbours", "load_checked_classifier", "predict_video", "run",
 ]  # fmt: skip
 
-COMPARISON_RULE = (
-    "the predicted class (argmax of the clip-averaged probabilities) and, of its grid "
-    "neighbours (one stretch or one bend step away in the 6 x 9 grid), the two with the "
-    "highest probability (ties: lower class id)"
-)
-"""How :func:`comparison_classes` chooses; written into ``prediction.json``."""
+
+def comparison_rule(material_set: MaterialSet = WANG54) -> str:
+    """How :func:`comparison_classes` chooses in ``material_set``'s grid, in words."""
+    grid = f"{material_set.stretch_count} x {material_set.bend_count}"
+    return (
+        "the predicted class (argmax of the clip-averaged probabilities) and, of its grid "
+        f"neighbours (one stretch or one bend step away in the {grid} grid), the two with the "
+        "highest probability (ties: lower class id)"
+    )
+
+
+COMPARISON_RULE = comparison_rule()
+"""How :func:`comparison_classes` chooses in the thesis's 6 x 9 grid; ``prediction.json``
+holds the rule of the run's own material set."""
 TOP_COUNT = 5
 _RENDER_STREAM = 4
 """Random stream of the renderer's effects (``[seed, stream]``), as in :mod:`datasets.demo`."""
@@ -132,7 +138,7 @@ class Prediction:
     """The classifier's verdict on one video."""
 
     probabilities: np.ndarray
-    """Class probabilities averaged over the clips, shape (54,)."""
+    """Class probabilities averaged over the clips, shape (classes,) (54 for ``wang54``)."""
     start_frames: tuple[int, ...]
     """First source frame of each clip used."""
     scores: dict[str, float]
@@ -168,7 +174,7 @@ class CloneOutputs:
 
 
 def load_checked_classifier(trained: TrainedRun) -> MaterialClassifierModule:
-    """The run's classifier, refused (naming ``run``) unless it predicts the 54 classes."""
+    """The run's classifier, refused (naming ``run``) unless it predicts its data's classes."""
     try:
         module = load_classifier(trained.checkpoint, map_location="cpu")
     except Exception as err:  # a file torch or the net config cannot rebuild: the user's input
@@ -177,7 +183,10 @@ def load_checked_classifier(trained: TrainedRun) -> MaterialClassifierModule:
             "give a checkpoint written by train.py"
         ) from None
     try:
-        check_class_count(module, checkpoint=trained.checkpoint, dataset=trained.data_dir)
+        grid = ClassGrid.from_json(trained.spec.material_set.to_json())
+        check_class_count(
+            module, checkpoint=trained.checkpoint, dataset=trained.data_dir, grid=grid
+        )
     except InputError as err:
         raise InputError(f"run: {err}") from None
     return module
@@ -309,12 +318,14 @@ def predict_video(
     batch_size: int = 16,
     device: torch.device | None = None,
 ) -> Prediction:
-    """Class probabilities of every clip, averaged, and their scores."""
+    """Class probabilities of every clip, averaged, and their scores (the module's class grid)."""
+    grid = module_grid(module)
     logits, _ = predict(
-        module, clips, batch_size=batch_size, device=device, desc="clips", class_count=CLASS_COUNT
-    )
+        module, clips, batch_size=batch_size, device=device, desc="clips",
+        class_count=grid.num_classes,
+    )  # fmt: skip
     probs = logits.double().softmax(dim=1).mean(dim=0)
-    scores = {k: float(v[0]) for k, v in material_scores(probs[None]).items()}
+    scores = {k: float(v[0]) for k, v in material_scores(probs[None], grid).items()}
     scores["predicted_class"] = int(scores["predicted_class"])
     return Prediction(
         probabilities=probs.numpy(),
@@ -323,29 +334,34 @@ def predict_video(
     )
 
 
-def grid_neighbours(class_id: int) -> tuple[int, ...]:
-    """Classes one stretch or one bend step from ``class_id`` in the 6 x 9 grid, ascending."""
-    bend_count = len(BEND_MULTIPLIERS)
+def grid_neighbours(class_id: int, material_set: MaterialSet = WANG54) -> tuple[int, ...]:
+    """Classes one stretch or one bend step from ``class_id`` in the set's grid, ascending."""
+    bend_count = material_set.bend_count
     stretch, bend = divmod(int(class_id), bend_count)
     out = []
     for ds, db in ((-1, 0), (1, 0), (0, -1), (0, 1)):
         s, b = stretch + ds, bend + db
-        if 0 <= s < CLASS_COUNT // bend_count and 0 <= b < bend_count:
+        if 0 <= s < material_set.stretch_count and 0 <= b < bend_count:
             out.append(s * bend_count + b)
     return tuple(sorted(out))
 
 
-def comparison_classes(probabilities: np.ndarray) -> tuple[int, int, int]:
-    """The predicted class and its two most probable grid neighbours (:data:`COMPARISON_RULE`).
+def comparison_classes(
+    probabilities: np.ndarray, material_set: MaterialSet = WANG54
+) -> tuple[int, int, int]:
+    """The predicted class and its two most probable grid neighbours (:func:`comparison_rule`).
 
     Args:
-        probabilities: Class probabilities, shape (54,).
+        probabilities: Class probabilities, shape (classes,) of ``material_set``.
+        material_set: The classes' set (the run's training data's).
     """
     probs = np.asarray(probabilities, dtype=np.float64)
-    if probs.shape != (CLASS_COUNT,):
-        raise ValueError(f"probabilities must have shape ({CLASS_COUNT},), got {probs.shape}")
+    count = material_set.class_count
+    if probs.shape != (count,):
+        raise ValueError(f"probabilities must have shape ({count},), got {probs.shape}")
     predicted = int(np.argmax(probs))
-    first, second = sorted(grid_neighbours(predicted), key=lambda c: (-probs[c], c))[:2]
+    neighbours = grid_neighbours(predicted, material_set)
+    first, second = sorted(neighbours, key=lambda c: (-probs[c], c))[:2]
     return predicted, first, second
 
 
@@ -421,8 +437,8 @@ def _one_scene(spec: DatasetSpec) -> WorkUnit:
     )
 
 
-def _class_entry(class_id: int, probability: float, **extra) -> dict:
-    stretch, bend = multipliers_from_class(class_id)
+def _class_entry(class_id: int, probability: float, material_set: MaterialSet, **extra) -> dict:
+    stretch, bend = material_set.multipliers(class_id)
     return {
         "class": int(class_id), "probability": float(probability),
         "stretch_multiplier": stretch, "bend_multiplier": bend, **extra,
@@ -441,6 +457,7 @@ def _report(
     probs = prediction.probabilities
     video = clips.video
     roles = ["predicted"] + ["neighbour"] * (len(classes) - 1)
+    material_set = trained.spec.material_set
     return {
         "video": str(video.path),
         "video_fps": video.fps,
@@ -455,13 +472,16 @@ def _report(
         },
         "run": {"checkpoint": str(trained.checkpoint), "data_dir": str(trained.data_dir)},
         "probabilities": [float(p) for p in probs],
-        "top5": [_class_entry(c, p) for c, p in prediction.top(TOP_COUNT)],
-        "predicted": _class_entry(prediction.predicted_class, probs[prediction.predicted_class]),
+        "top5": [_class_entry(c, p, material_set) for c, p in prediction.top(TOP_COUNT)],
+        "predicted": _class_entry(
+            prediction.predicted_class, probs[prediction.predicted_class], material_set
+        ),
         "scores": prediction.scores,
         "comparison": {
-            "rule": COMPARISON_RULE,
+            "rule": comparison_rule(material_set),
             "classes": [
-                _class_entry(c, probs[c], role=r) for c, r in zip(classes, roles, strict=True)
+                _class_entry(c, probs[c], material_set, role=r)
+                for c, r in zip(classes, roles, strict=True)
             ],
         },
         "simulation": {
@@ -486,8 +506,9 @@ def run(cfg: DictConfig) -> CloneOutputs:
     prediction = predict_video(
         checked["module"], clips, batch_size=checked["batch_size"], device=checked["device"]
     )
-    classes = comparison_classes(prediction.probabilities)
-    spec = dataclasses.replace(checked["spec"], classes=classes)
+    material_set = trained.spec.material_set  # the classes the run was trained on
+    classes = comparison_classes(prediction.probabilities, material_set)
+    spec = dataclasses.replace(checked["spec"], classes=classes, material_set=material_set)
     unit = _one_scene(spec)
     predicted = time.perf_counter()
 
@@ -503,7 +524,7 @@ def run(cfg: DictConfig) -> CloneOutputs:
         seq = simulate_unit(spec, unit, None, on_step=on_step)
     finally:
         bar.close()
-    seq.meta["classes"] = [class_summary(c) for c in classes]
+    seq.meta["classes"] = [material_set.summary(c) for c in classes]
     seq.meta["clone"] = {"video": str(clips.video.path), "checkpoint": str(trained.checkpoint)}
     simulated = time.perf_counter()
 
@@ -527,7 +548,10 @@ def run(cfg: DictConfig) -> CloneOutputs:
         ("input video", name, f"{len(clips)} clips, {video.fps:g} fps", f"-> class {classes[0]}")
     ]
     labels += [
-        (*class_lines(c), f"{'predicted' if i == 0 else 'neighbour'}, p={probs[c]:.2f}")
+        (
+            *class_lines(c, material_set),
+            f"{'predicted' if i == 0 else 'neighbour'}, p={probs[c]:.2f}",
+        )
         for i, c in enumerate(classes)
     ]
     tiles = [source, *rendered]
@@ -552,7 +576,7 @@ def run(cfg: DictConfig) -> CloneOutputs:
 
     seconds = time.perf_counter() - start
     c = classes[0]
-    stretch, bend = multipliers_from_class(c)
+    stretch, bend = material_set.multipliers(c)
     print(
         f"clone: {video.path} -> class {c} (stretch x{stretch:g}, bend x{bend:g}, "
         f"p={probs[c]:.2f}) from {len(clips)} clips; shown beside classes {classes[1]} and "

@@ -1,4 +1,10 @@
-"""Lightning DataModule over one or more generated datasets (clip or frame mode)."""
+"""Lightning DataModule over one or more generated datasets (clip or frame mode).
+
+The labels travel with the data: the module reads its datasets' material set (the class grid)
+from their manifests and hands it on as plain numbers (:attr:`ClothVideoDataModule.num_classes`,
+:attr:`~ClothVideoDataModule.class_grid`), which ``train.py`` gives the net and the
+LightningModule.
+"""
 
 from __future__ import annotations
 
@@ -9,9 +15,11 @@ import lightning as L
 import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
+from simulator.cloth.material import MaterialSet
+
 from .augment import BackgroundSwap, ClipAugment, TextureSwap
 from .clip_dataset import ClothClipDataset, ClothFrameDataset
-from .manifest import SPLIT_PROTOCOLS
+from .manifest import SPLIT_PROTOCOLS, Manifest
 from .spec import check_int
 
 __all__ = ["ClothVideoDataModule"]
@@ -80,6 +88,53 @@ class ClothVideoDataModule(L.LightningDataModule):
         self.background_swap = background_swap
         self.texture_swap = texture_swap
         self.datasets: dict[str, Dataset] = {}
+        self._material_set: MaterialSet | None = None
+
+    @property
+    def material_set(self) -> MaterialSet:
+        """The datasets' material set, read from their manifests (all must share it)."""
+        if self._material_set is None:
+            sets = {path: Manifest.load(path).material_set for path in self.data_dirs}
+            first = next(iter(sets.values()))
+            other = next((p for p, m in sets.items() if m != first), None)
+            if other is not None:
+                raise ValueError(
+                    f"data_dirs must share one material set (class grid): {self.data_dirs[0]} "
+                    f"has {first.name} ({first.class_count} classes), {other} has "
+                    f"{sets[other].name} ({sets[other].class_count} classes)"
+                )
+            self._material_set = first
+        return self._material_set
+
+    @property
+    def num_classes(self) -> int:
+        """Classes of the material set (the classifier's outputs)."""
+        return self.material_set.class_count
+
+    @property
+    def stretch_count(self) -> int:
+        """Stretch indices of the class grid (class id = stretch index * bend count + bend)."""
+        return self.material_set.stretch_count
+
+    @property
+    def bend_count(self) -> int:
+        """Bend indices of the class grid."""
+        return self.material_set.bend_count
+
+    @property
+    def stretch_multipliers(self) -> list[float]:
+        """The basis fabric's stretching multiplier of each stretch index."""
+        return list(self.material_set.stretch_multipliers)
+
+    @property
+    def bend_multipliers(self) -> list[float]:
+        """The basis fabric's bending multiplier of each bend index."""
+        return list(self.material_set.bend_multipliers)
+
+    @property
+    def class_grid(self) -> dict:
+        """The material set as plain JSON (multipliers and counts), for the models."""
+        return self.material_set.to_json()
 
     def _build(self, split: str) -> Dataset:
         mode = self.mode if split == "train" else self.eval_mode

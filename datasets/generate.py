@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from render.effects import VisualEffects
 from render.textures import TextureMode
 from simulator.cloth.effects import PhysicsEffects
-from simulator.cloth.material import check_class_ids
+from simulator.cloth.material import WANG54, MaterialError, MaterialSet
 from simulator.cloth.scenes import RESOLUTION_LEVELS
 from simulator.errors import (
     InputError,
@@ -57,12 +57,27 @@ def _plain(node) -> dict:
     return values
 
 
+def material_set_from_config(node) -> MaterialSet:
+    """The :class:`MaterialSet` of a ``material_set`` config node (``None``: ``wang54``).
+
+    Raises:
+        InputError: naming ``material_set.<field>`` and what it must be.
+    """
+    if node is None:
+        return WANG54
+    values = OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
+    try:
+        return MaterialSet.from_json(values, "material_set")
+    except MaterialError as err:
+        raise InputError(str(err)) from None
+
+
 def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> DatasetSpec:
     """Build the validated :class:`DatasetSpec` of a generate config.
 
     Args:
         cfg: A config with the fields of ``configs/generate.yaml`` (``sims_per_unit`` may
-            be left out: 0, all classes in one rollout).
+            be left out: 0, all classes in one rollout; ``material_set`` too: ``wang54``).
         preset: Use this size preset instead of the config's ``preset`` node
             (:mod:`datasets.demo` derives its own from ``fps`` and ``record_time``).
 
@@ -78,10 +93,11 @@ def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> Da
             )
         check_int(cfg.level, "level", min(RESOLUTION_LEVELS), max(RESOLUTION_LEVELS))
         texture = check_choice(cfg.texture, "texture", [m.value for m in TextureMode])
+        material_set = material_set_from_config(cfg.get("material_set"))
         classes = cfg.classes
-        kwargs = {}
+        kwargs = {"material_set": material_set}
         if classes is not None:
-            kwargs["classes"] = check_class_ids(classes, "classes")
+            kwargs["classes"] = material_set.check_class_ids(classes, "classes")
             if len(set(kwargs["classes"])) != len(kwargs["classes"]):
                 raise InputError(f"classes must not repeat a class id, got {list(classes)}")
         for name in _NODES:

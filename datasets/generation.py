@@ -27,7 +27,7 @@ import numpy as np
 
 from render.backgrounds import make_background
 from render.textures import make_texture
-from simulator.cloth.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
+from simulator.cloth.material import WANG54, ClothMaterial, load_wang_material
 from simulator.cloth.rollout import simulate, with_capsules
 from simulator.errors import InputError
 from simulator.sequence import MeshSequence
@@ -82,9 +82,9 @@ def simulate_unit(
     """The unit's mesh sequence: from the cache when present, else simulated (and cached).
 
     ``on_step(step, total)`` follows the rollout (see :func:`simulator.cloth.rollout.simulate`).
-    ``multipliers`` = (stretch, bend) per simulation of the basis fabric, instead of the
-    simulations' classes (the sim-to-real diagnosis draws continuous materials); they are
-    part of the cache key.
+    ``multipliers`` = (stretch, bend) per simulation of the spec's basis fabric, instead of
+    the simulations' classes of its material set (the sim-to-real diagnosis draws continuous
+    materials); they are part of the cache key.
     """
     path = None
     if cache_dir is not None:
@@ -103,10 +103,10 @@ def simulate_unit(
                 log.warning("ignoring unreadable mesh cache %s (%s)", path, err)
     classes = [s.class_id for s in unit.sims]
     if multipliers is None:
-        material = ClothMaterial.from_classes(classes)
+        material = spec.material_set.materials(classes)
     else:
         material = ClothMaterial.from_wang(
-            load_wang_material(BASIS_MATERIAL), stretch_mult=list(multipliers[0]),
+            load_wang_material(spec.material_set.basis), stretch_mult=list(multipliers[0]),
             bend_mult=list(multipliers[1]),
         )  # fmt: skip
     seq = simulate(
@@ -320,6 +320,12 @@ def _prepare_dir(spec: DatasetSpec, out_dir: Path, overwrite: bool) -> None:
 
 
 def _merge(spec: DatasetSpec, out_dir: Path, indices: list[dict]) -> Manifest:
+    """Write the manifest of all units (with the spec's material set).
+
+    A finished dataset's manifest from before the material set was recorded is kept as it is
+    when it lists the same shards and clips of the default set: its bytes are the identity
+    that training runs recorded (``train.py``), and it reads as that set anyway.
+    """
     indices = sorted(indices, key=lambda index: index["unit"])
     manifest = Manifest(
         root=out_dir,
@@ -327,7 +333,15 @@ def _merge(spec: DatasetSpec, out_dir: Path, indices: list[dict]) -> Manifest:
         spec_key=spec.key(),
         shards=tuple(s for index in indices for s in index["shards"]),
         clips=tuple(c for index in indices for c in index["clips"]),
+        material_set=spec.material_set,
     )
+    path = Manifest.path(out_dir)
+    if spec.material_set == WANG54 and path.is_file():
+        try:
+            if "material_set" not in read_json(path) and Manifest.load(out_dir) == manifest:
+                return manifest
+        except (ShardError, KeyError, TypeError) as err:
+            log.warning("rewriting unreadable %s (%s)", path, err)
     manifest.save()
     return manifest
 

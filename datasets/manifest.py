@@ -5,11 +5,17 @@ Layout of a dataset directory::
     spec.json            the DatasetSpec (JSON) and its key; written first
     units/unit-0003.json one per finished work unit: its shards (sha256, bytes) and clips
     shards/{split}-unit-0003.tar
-    manifest.json        all units merged: spec, shards, clips (written when all units exist)
+    manifest.json        all units merged: spec, material set (the class grid), shards, clips
+                         (written when all units exist)
     manifest.csv         one row per clip, for people and pandas
 
 A unit counts as finished only when its index file exists and its shards match their
 recorded checksums, so a killed run is resumed by running the same command again.
+
+The manifest's ``material_set`` says what the labels mean (basis fabric, stretch and bend
+multipliers, class count): training, evaluation and the models read the classes from it, never
+from the simulator. Manifests written before it was recorded lack it; they read as
+:data:`~simulator.cloth.material.WANG54`, the 54 classes every such dataset was made of.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.cloth.material import BEND_MULTIPLIERS, class_summary
+from simulator.cloth.material import WANG54, MaterialError, MaterialSet
 from simulator.sequence import atomic_write_bytes
 
 from .plan import SimulationPlan
@@ -30,7 +36,8 @@ from .shards import ShardError, verify_shard
 from .spec import DatasetSpec
 
 __all__ = [
-    "MANIFEST_SCHEMA", "SPLIT_PROTOCOLS", "Manifest", "clip_record", "read_json", "write_json",
+    "MANIFEST_SCHEMA", "SPLIT_PROTOCOLS", "Manifest", "clip_record", "legacy_class_grid",
+    "read_json", "write_json",
 ]  # fmt: skip
 
 SPLIT_PROTOCOLS = ("simulation", "sequence")
@@ -52,6 +59,15 @@ CSV_COLUMNS = (
     "wind_speed", "texture_mode", "resolution_level", "effects", "seed", "sim_id",
     "clip_index", "start_frame", "frame_count", "fps", "height", "width", "sha256",
 )  # fmt: skip
+
+
+def legacy_class_grid() -> dict:
+    """The class grid of data and checkpoints that do not record theirs: ``WANG54``'s, as JSON.
+
+    For :mod:`models`, which take the grid as plain numbers (``stretch_multipliers``,
+    ``bend_multipliers`` and the counts) and never import the simulator.
+    """
+    return WANG54.to_json()
 
 
 def write_json(path: str | Path, payload) -> None:
@@ -83,8 +99,8 @@ def clip_record(
     ``passes`` (render passes and background stored) is written only when true, so rows of
     datasets made before it existed are unchanged.
     """
-    summary = class_summary(sim.class_id)
-    stretch_index, bend_index = divmod(sim.class_id, len(BEND_MULTIPLIERS))
+    summary = spec.material_set.summary(sim.class_id)
+    stretch_index, bend_index = divmod(sim.class_id, spec.material_set.bend_count)
     speeds = getattr(spec.scenario, "wind_speeds", None)
     preset = spec.preset
     return {
@@ -120,13 +136,16 @@ def clip_record(
 
 @dataclasses.dataclass(frozen=True)
 class Manifest:
-    """A finished dataset: spec, shards (with checksums) and clips."""
+    """A finished dataset: spec, shards (with checksums), clips and its material set."""
 
     root: Path
     spec: dict
     spec_key: str
     shards: tuple[dict, ...]
     clips: tuple[dict, ...]
+    material_set: MaterialSet = WANG54
+    """What the class ids mean; ``WANG54`` for manifests that do not record it (see the
+    module doc)."""
 
     @staticmethod
     def path(root: str | Path) -> Path:
@@ -135,7 +154,11 @@ class Manifest:
 
     @classmethod
     def load(cls, root: str | Path) -> Manifest:
-        """Read ``root/manifest.json``; a clear error if the directory is not a dataset."""
+        """Read ``root/manifest.json``; a clear error if the directory is not a dataset.
+
+        A manifest without ``material_set`` (written before it was recorded) reads as
+        :data:`~simulator.cloth.material.WANG54`.
+        """
         root = Path(root)
         if not root.is_dir():
             raise FileNotFoundError(f"dataset directory {root} does not exist")
@@ -148,12 +171,19 @@ class Manifest:
         data = read_json(path)
         if data.get("schema_version") != MANIFEST_SCHEMA:
             raise ShardError(f"{path}: schema_version {data.get('schema_version')} unsupported")
+        material_set = WANG54
+        if "material_set" in data:
+            try:
+                material_set = MaterialSet.from_json(data["material_set"], f"{path}: material_set")
+            except MaterialError as err:
+                raise ShardError(str(err)) from None
         return cls(
             root=root,
             spec=data["spec"],
             spec_key=data["spec_key"],
             shards=tuple(data["shards"]),
             clips=tuple(data["clips"]),
+            material_set=material_set,
         )
 
     def save(self) -> None:
@@ -164,6 +194,7 @@ class Manifest:
                 "schema_version": MANIFEST_SCHEMA,
                 "spec": self.spec,
                 "spec_key": self.spec_key,
+                "material_set": self.material_set.to_json(),
                 "shards": list(self.shards),
                 "clips": list(self.clips),
             },

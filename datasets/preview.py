@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simulator.cloth.material import multipliers_from_class
+from simulator.cloth.material import WANG54, MaterialSet
 from simulator.sequence import atomic_write_bytes
 
 from .clip_dataset import ClothClipDataset
@@ -58,9 +58,9 @@ def draw_label(image: np.ndarray, text: str, origin: tuple[int, int], scale: flo
     cv2.putText(image, text, origin, font, scale, (255, 255, 255), 1, line)
 
 
-def class_lines(class_id: int) -> tuple[str, ...]:
-    """Label lines of a subspace class: its id, then its stretch and bend multipliers."""
-    stretch, bend = multipliers_from_class(int(class_id))
+def class_lines(class_id: int, material_set: MaterialSet = WANG54) -> tuple[str, ...]:
+    """Label lines of a class of ``material_set``: its id, then its stretch and bend multipliers."""
+    stretch, bend = material_set.multipliers(int(class_id))
     return (f"class {int(class_id)}", f"stretch x{stretch:g}", f"bend x{bend:g}")
 
 
@@ -126,7 +126,8 @@ def contact_sheet(
             if len(chosen) == clips_per_class:
                 break
         strips = [frame_strip(data.read(i)[1], frames_per_clip) for i in chosen]
-        rows.append((class_lines(class_id), np.concatenate(strips, axis=1)))
+        lines = class_lines(class_id, data.manifest.material_set)
+        rows.append((lines, np.concatenate(strips, axis=1)))
     return labelled_rows(rows)
 
 

@@ -2,8 +2,9 @@
 
 A :class:`DatasetSpec` fixes everything that decides the bytes of a dataset: the motion
 (scene), mesh resolution, texture mode, physical and visual effect switches, size,
-solver settings, image size and seed. Its JSON form goes into the manifest; its hashes
-decide whether an existing output directory or mesh cache belongs to the same dataset.
+solver settings, image size, seed and the material set (the class grid). Its JSON form goes
+into the manifest; its hashes decide whether an existing output directory or mesh cache
+belongs to the same dataset.
 
 Size. The thesis generates 2,592 ten-frame clips per (motion, remeshing, texture) setting
 and tests on 432 of them. Our ``full`` preset makes the same numbers with splits that hold
@@ -26,7 +27,7 @@ from render.effects import VisualEffects, source_frame_count
 from render.lights import LightSpec
 from render.textures import TextureMode
 from simulator.cloth.effects import PhysicsEffects
-from simulator.cloth.material import CLASS_COUNT
+from simulator.cloth.material import WANG54, MaterialSet
 from simulator.cloth.rollout import SimSettings
 from simulator.cloth.scenes import ScenarioArmBend, ScenarioWind
 
@@ -144,12 +145,14 @@ PHYSICS_KEYS = (
     "motion", "scenario", "preset", "classes", "seed", "lead_in", "sim", "physics",
     "sims_per_unit",
 )  # fmt: skip
-"""The spec entries that decide the simulated meshes (and so the mesh cache folder)."""
+"""The spec entries that decide the simulated meshes (and so the mesh cache folder); a
+``material_set`` other than :data:`~simulator.cloth.material.WANG54` decides them too."""
 
 
 def physics_key_of(spec_json: dict) -> str:
     """Mesh-cache key of a spec in its JSON form (e.g. a manifest's ``spec``)."""
-    return _digest({k: spec_json[k] for k in PHYSICS_KEYS})
+    keys = (*PHYSICS_KEYS, "material_set") if "material_set" in spec_json else PHYSICS_KEYS
+    return _digest({k: spec_json[k] for k in keys})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,7 +165,8 @@ class DatasetSpec:
     preset: SizePreset
     texture_mode: str = "random"
     """``grid``, ``color`` or ``random`` (Table 7.2's texture column)."""
-    classes: tuple[int, ...] = tuple(range(CLASS_COUNT))
+    classes: tuple[int, ...] | None = None
+    """Class ids of ``material_set`` to simulate (``None``: all of them)."""
     seed: int = 0
     lead_in: float = 0.0
     """Recorded time dropped before the first clip [s] (the wind scene's ramp-in)."""
@@ -183,6 +187,9 @@ class DatasetSpec:
     sims_per_unit: int = 0
     """Simulations batched into one work unit (one rollout, one set of shards); 0 = all
     classes of one simulation index."""
+    material_set: MaterialSet = WANG54
+    """The classes: basis fabric and the stretch x bend multiplier grid (the labels' meaning,
+    written into the manifest for training and evaluation)."""
 
     def __post_init__(self):
         if self.motion not in MOTIONS:
@@ -200,17 +207,20 @@ class DatasetSpec:
                 f"texture_mode must be one of {[m.value for m in TextureMode]}, "
                 f"got {self.texture_mode!r}"
             ) from None
-        classes = tuple(self.classes)
+        if not isinstance(self.material_set, MaterialSet):
+            raise ValueError(f"material_set must be a MaterialSet, got {self.material_set!r}")
+        count = self.material_set.class_count
+        classes = tuple(range(count)) if self.classes is None else tuple(self.classes)
         if not all(_is_integral(c) for c in classes):  # 1.7 is refused, never truncated
             raise ValueError(
-                f"classes must be integer class ids in [0, {CLASS_COUNT - 1}], got {list(classes)}"
+                f"classes must be integer class ids in [0, {count - 1}], got {list(classes)}"
             )
         classes = tuple(int(c) for c in classes)
         if not classes or len(set(classes)) != len(classes):
             raise ValueError(f"classes must be a non-empty list without repeats, got {classes}")
-        bad = [c for c in classes if not 0 <= c < CLASS_COUNT]
+        bad = [c for c in classes if not 0 <= c < count]
         if bad:
-            raise ValueError(f"classes must be in [0, {CLASS_COUNT - 1}], got {bad}")
+            raise ValueError(f"classes must be in [0, {count - 1}], got {bad}")
         object.__setattr__(self, "classes", classes)
         check_int("seed", self.seed, low=0)
         if not self.lead_in >= 0:
@@ -292,12 +302,15 @@ class DatasetSpec:
     def to_json(self) -> dict:
         """Plain-JSON form (goes into the manifest).
 
-        ``store_passes`` appears only when on, so datasets made before it existed keep their
-        keys (and resume).
+        ``store_passes`` appears only when on and ``material_set`` only when it is not
+        :data:`~simulator.cloth.material.WANG54`, so datasets made before they existed keep
+        their keys (and resume); :meth:`from_json` reads a missing set as ``WANG54``.
         """
         out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
         if not self.store_passes:
             del out["store_passes"]
+        if self.material_set == WANG54:
+            del out["material_set"]
         return out
 
     @classmethod

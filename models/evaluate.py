@@ -16,9 +16,9 @@ an earlier report is overwritten. A folder whose evaluation finished (it holds `
 the hashed inputs) is refused unless ``overwrite=true``; an evaluation that fails removes the folder
 it created. The folder holds:
 
-* ``sim_<split>.json`` / ``.md``: top-1 and top-5 accuracy over the 54 classes, stretch- and
-  bend-factor accuracy, 6 x 9 grid MAE, the same per wind level (W1, W2, W3), and
-  ``confusion_<split>.png``;
+* ``sim_<split>.json`` / ``.md``: top-1 and top-5 accuracy over the classes (54 of the 6 x 9
+  grid for the thesis's material set), stretch- and bend-factor accuracy, grid MAE, the same per
+  wind level (W1, W2, W3), and ``confusion_<split>.png``;
 * ``real.json`` / ``.md`` / ``real_videos.csv``: per video the clip-averaged class
   probabilities turned into scores (:mod:`models.scores`); each score's Pearson r and
   Spearman rho, with group-bootstrap 95 % intervals and p-values (:mod:`models.correlation`),
@@ -26,7 +26,13 @@ it created. The folder holds:
   videos listed, used and skipped (too short for one clip); and
   ``scatter_<score>_vs_<column>.png`` (predicted vs measured, coloured by wind).
 
-The checkpoint's class count is checked against the 54 classes before anything is predicted.
+The classes come with the data, never from the simulator: a dataset's from its manifest's
+material set, real footage's from the checkpoint's ``class_grid`` hyper-parameter (checkpoints
+without one predict the 54 classes of ``wang54``, see
+:func:`~models.material_classifier.load_classifier`). The checkpoint's class count is checked
+against them before anything is predicted. Predictions run through Lightning
+(``trainer.predict`` with :meth:`~models.material_classifier.MaterialClassifierModule.
+predict_step`, :func:`predict`), the same path for ``train.py``'s final test and this command.
 """
 
 from __future__ import annotations
@@ -38,33 +44,43 @@ import json
 import logging
 import re
 import shutil
-from collections.abc import Sequence
+import sys
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import hydra
+import lightning as L
 import torch
+from lightning.pytorch.callbacks import Callback, TQDMProgressBar
+from lightning.pytorch.callbacks.progress.tqdm_progress import Tqdm
 from omegaconf import DictConfig, OmegaConf
 from torch import nn
 from torch.utils.data import DataLoader, Dataset
-from tqdm.auto import tqdm
 
 from datasets.clip_dataset import ClothClipDataset
-from datasets.manifest import SPLIT_PROTOCOLS, Manifest
+from datasets.manifest import SPLIT_PROTOCOLS, Manifest, legacy_class_grid
 from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset
 from datasets.spec import SPLITS
-from simulator.cloth.material import CLASS_COUNT
 from simulator.errors import InputError, check_choice, check_float, check_int, report_user_errors
 from simulator.sequence import atomic_write_bytes
 
 from .correlation import correlate
 from .material_classifier import MaterialClassifierModule, load_classifier
-from .metrics import BREAKDOWNS, breakdown_metrics, classification_metrics, confusion_matrix
+from .metrics import (
+    BREAKDOWNS,
+    ClassGrid,
+    breakdown_metrics,
+    classification_metrics,
+    confusion_matrix,
+)
 from .report import confusion_png, markdown_table, scatter_png, wind_label, write_json, write_text
 from .scores import CORRELATED_SCORES, SCORE_NAMES, material_scores
 
 __all__ = [
-    "check_class_count", "checkpoint_class_count", "evaluate_real", "evaluate_simulated",
-    "evaluation_folder", "pick_device", "predict", "run",
+    "check_class_count", "checkpoint_class_count", "dataset_grid", "evaluate_real",
+    "evaluate_simulated", "evaluation_folder", "module_grid", "pick_device", "predict", "run",
 ]  # fmt: skip
 
 log = logging.getLogger(__name__)
@@ -91,20 +107,101 @@ def checkpoint_class_count(module: MaterialClassifierModule) -> int | None:
     return None if count is None else int(count)
 
 
+def dataset_grid(data_dir: str | Path) -> ClassGrid:
+    """The class grid of a generated dataset: its manifest's material set."""
+    return ClassGrid.from_json(Manifest.load(data_dir).material_set.to_json())
+
+
+def module_grid(module: MaterialClassifierModule) -> ClassGrid:
+    """The class grid a module was trained on: its ``class_grid``, else ``wang54``'s.
+
+    A module without one predates the grids in checkpoints (:func:`load_classifier` fills
+    theirs the same way); every dataset of that time had the 54 classes of ``wang54``.
+    """
+    return module.class_grid or ClassGrid.from_json(legacy_class_grid())
+
+
 def check_class_count(
-    module: MaterialClassifierModule, *, checkpoint: str | Path | None, dataset: str | Path
+    module: MaterialClassifierModule,
+    *,
+    checkpoint: str | Path | None,
+    dataset: str | Path,
+    grid: ClassGrid,
 ) -> None:
-    """Refuse a checkpoint whose class count is not the datasets' 54 (one line, both counts)."""
+    """Refuse a checkpoint whose classes are not ``grid``'s, the data's (one line, both).
+
+    The class counts must agree; a checkpoint that records its grid must have this one.
+    """
+    name = checkpoint or "(in memory)"
     count = checkpoint_class_count(module)
-    if count is not None and count != CLASS_COUNT:
+    if count is not None and count != grid.num_classes:
         raise InputError(
-            f"checkpoint {checkpoint or '(in memory)'} predicts {count} classes but {dataset} "
-            f"has {CLASS_COUNT} (the 6 x 9 stretch x bend classes); use a checkpoint trained "
-            "on them"
+            f"checkpoint {name} predicts {count} classes but {dataset} has {grid.describe()}; "
+            "use a checkpoint trained on them"
+        )
+    if module.class_grid is not None and module.class_grid != grid:
+        theirs, ours = module.class_grid.to_json(), grid.to_json()
+        raise InputError(
+            f"checkpoint {name} was trained on the class grid stretch "
+            f"{theirs['stretch_multipliers']} x bend {theirs['bend_multipliers']} but {dataset} "
+            f"has stretch {ours['stretch_multipliers']} x bend {ours['bend_multipliers']}; use "
+            "a checkpoint trained on its material set"
         )
 
 
-@torch.no_grad()
+class _WidthCheck(Callback):
+    """Refuse logits whose width is not ``class_count`` at the first batch."""
+
+    def __init__(self, class_count: int):
+        self.class_count = class_count
+
+    def on_predict_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, *_) -> None:
+        """Check the first batch's logits."""
+        width = outputs["logits"].shape[-1]
+        if batch_idx == 0 and width != self.class_count:
+            raise InputError(
+                f"the checkpoint predicts {width} classes but the dataset has {self.class_count}"
+            )
+
+
+class _Progress(TQDMProgressBar):
+    """Lightning's progress bar, named after what is predicted, on stderr and gone when done."""
+
+    def __init__(self, desc: str):
+        super().__init__()
+        self.desc = desc
+
+    @property
+    def predict_description(self) -> str:
+        """The bar's name."""
+        return self.desc
+
+    def init_predict_tqdm(self) -> Tqdm:
+        """A bar that leaves stdout to the command's own output."""
+        return Tqdm(
+            desc=self.desc, disable=self.is_disabled, leave=False, dynamic_ncols=True,
+            file=sys.stderr, smoothing=0, unit="batch",
+        )  # fmt: skip
+
+
+@contextmanager
+def _quiet_lightning() -> Iterator[None]:
+    """Silence Lightning's per-trainer banners (devices, loader workers) around a prediction."""
+    names = ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.accelerators.cuda")
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.WARNING)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+            warnings.filterwarnings("ignore", message=".*treespec, LeafSpec.*")  # Lightning's own
+            yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
 def predict(
     module: MaterialClassifierModule,
     dataset: Dataset,
@@ -116,22 +213,28 @@ def predict(
 ) -> tuple[torch.Tensor, list[dict]]:
     """Logits (N, classes) of every clip of ``dataset`` and each sample's metadata (no pixels).
 
-    With ``class_count``, logits of another width are refused at the first batch.
+    Lightning's ``trainer.predict`` runs the module's
+    :meth:`~models.material_classifier.MaterialClassifierModule.predict_step` over the clips
+    in order, on ``device`` (default :func:`pick_device`), in full precision without
+    gradients. With ``class_count``, logits of another width are refused at the first batch.
     """
     device = device or pick_device()
-    module = module.to(device).eval()
-    logits, meta = [], []
+    callbacks: list[Callback] = [_Progress(desc)]
+    if class_count is not None:
+        callbacks.append(_WidthCheck(class_count))
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=0)
-    for batch in tqdm(loader, desc=desc, unit="batch", leave=False):
-        out = module(batch["video"].to(device)).float().cpu()
-        if class_count is not None and out.shape[-1] != class_count:
-            raise InputError(
-                f"the checkpoint predicts {out.shape[-1]} classes but the dataset has {class_count}"
-            )
-        logits.append(out)
-        size = batch["video"].shape[0]
-        for i in range(size):
-            meta.append({k: _item(v[i]) for k, v in batch.items() if k != "video"})
+    with _quiet_lightning():
+        trainer = L.Trainer(
+            accelerator=device.type, devices=[device.index] if device.index is not None else 1,
+            precision="32-true", logger=False, enable_checkpointing=False,
+            enable_model_summary=False, inference_mode=False, callbacks=callbacks,
+        )  # fmt: skip
+        outputs = trainer.predict(module, dataloaders=loader, return_predictions=True)
+    logits, meta = [], []
+    for out in outputs or []:
+        logits.append(out["logits"])
+        for i in range(out["logits"].shape[0]):
+            meta.append({k: _item(v[i]) for k, v in out["meta"].items()})
     return torch.cat(logits), meta
 
 
@@ -175,11 +278,13 @@ def evaluate_simulated(
     device) are stored in the JSON as they are. The JSON keeps wind levels as stored (0, 1,
     2: the results ledger reads them); the Markdown names them W1, W2, W3.
     """
-    check_class_count(module, checkpoint=checkpoint, dataset=data_dir)
+    grid = dataset_grid(data_dir)
+    check_class_count(module, checkpoint=checkpoint, dataset=data_dir, grid=grid)
     dataset = ClothClipDataset(data_dir, split, verify=True, split_protocol=split_protocol)
     logits, meta = predict(
-        module, dataset, batch_size=batch_size, desc=f"{split} clips", class_count=CLASS_COUNT
-    )
+        module, dataset, batch_size=batch_size, desc=f"{split} clips",
+        class_count=grid.num_classes,
+    )  # fmt: skip
     labels = torch.tensor([m["label"] for m in meta])
     result = {
         "method": module.hparams.get("method", ""),
@@ -187,16 +292,16 @@ def evaluate_simulated(
         "split": split,
         "split_protocol": split_protocol,
         "clips": len(meta),
-        **classification_metrics(logits, labels),
+        **classification_metrics(logits, labels, grid),
         **(extra or {}),
     }
-    result.update(breakdown_metrics(logits, labels, meta))
+    result.update(breakdown_metrics(logits, labels, meta, grid))
     out = Path(out_dir)
-    matrix = confusion_matrix(labels, logits.argmax(1)).numpy()
+    matrix = confusion_matrix(labels, logits.argmax(1), grid.num_classes).numpy()
     result["confusion"] = matrix.tolist()
     write_json(out / f"sim_{split}.json", result)
     title = f"{result['method']} on {Path(data_dir).name} ({split}): top-1 {_pct(result['acc'])} %"
-    confusion_png(out / f"confusion_{split}.png", matrix, title)
+    confusion_png(out / f"confusion_{split}.png", matrix, title, grid)
     rows = [_metrics_row(result["method"], result)]
     for key, field in BREAKDOWNS.items():
         for value, sub in result.get(key, {}).items():
@@ -260,7 +365,8 @@ def evaluate_real(
     result holds the thesis's Table 7.3 figures (``material_score`` against each column, per
     input) and ``score_correlations[input][score][column]`` every pair.
     """
-    check_class_count(module, checkpoint=checkpoint, dataset=real_dir)
+    grid = module_grid(module)
+    check_class_count(module, checkpoint=checkpoint, dataset=real_dir, grid=grid)
     clashes = [c for c in columns if c in (*SCORE_NAMES, "clips")]
     if clashes:
         raise InputError(f"columns {clashes} clash with report fields; rename them in labels.csv")
@@ -270,7 +376,7 @@ def evaluate_real(
     )  # fmt: skip
     columns = dataset.columns
     logits, meta = predict(
-        module, dataset, batch_size=batch_size, desc="real clips", class_count=CLASS_COUNT
+        module, dataset, batch_size=batch_size, desc="real clips", class_count=grid.num_classes
     )
     probs = logits.softmax(dim=1)
     rows_of: dict[str, list[int]] = {}
@@ -278,7 +384,7 @@ def evaluate_real(
         rows_of.setdefault(m["video_name"], []).append(i)
     used = [v for v in dataset.videos if v.name in rows_of]  # labels.csv order
     mean_probs = torch.stack([probs[rows_of[v.name]].mean(0) for v in used])
-    scores = {k: v.tolist() for k, v in material_scores(mean_probs).items()}
+    scores = {k: v.tolist() for k, v in material_scores(mean_probs, grid).items()}
     per_video = [
         {"video": v.name, "group": v.group, "wind": v.wind, "clips": len(rows_of[v.name]),
          **v.values, **{k: scores[k][i] for k in scores}}
@@ -343,9 +449,10 @@ def evaluate_real(
         "bootstrap_seed": seed,
         "bootstrap_unit": "group",
         "p_value": "two-sided t-test of r with groups - 2 degrees of freedom",
-        "score_definition": "material_score = sum_c p_c * c over the 54 classes (class id = "
-        "stretch_index * 9 + bend_index, a stiffness ordering); stretch_score, bend_score = "
-        "expected stretch (0..5) and bend (0..8) index; p averaged over a video's clips",
+        "score_definition": f"material_score = sum_c p_c * c over the {grid.num_classes} "
+        f"classes (class id = stretch_index * {grid.bend_count} + bend_index, a stiffness "
+        f"ordering); stretch_score, bend_score = expected stretch (0..{grid.stretch_count - 1}) "
+        f"and bend (0..{grid.bend_count - 1}) index; p averaged over a video's clips",
         "correlations": correlations,
         "score_correlations": score_correlations,
         "scatter": scatter,
@@ -357,7 +464,7 @@ def evaluate_real(
     writer.writeheader()
     writer.writerows(per_video)
     atomic_write_bytes(out / "real_videos.csv", buffer.getvalue().encode())
-    write_text(out / "real.md", _real_markdown(result, dataset, inputs))
+    write_text(out / "real.md", _real_markdown(result, dataset, inputs, grid))
     log.info(
         "%s: %d of %d videos used, %d skipped; report in %s",
         real_dir, result["videos_used"], result["videos_listed"], result["videos_skipped"], out,
@@ -365,7 +472,9 @@ def evaluate_real(
     return result
 
 
-def _real_markdown(result: dict, dataset: RealVideoDataset, inputs: dict[str, list]) -> str:
+def _real_markdown(
+    result: dict, dataset: RealVideoDataset, inputs: dict[str, list], grid: ClassGrid
+) -> str:
     """``real.md``: counts, skipped videos, the correlation table, thesis reference, plots."""
     columns, lines = result["columns"], []
     lines.append(f"# Real videos: {Path(result['real_dir']).name} (Table 7.3 style)\n")
@@ -387,9 +496,10 @@ def _real_markdown(result: dict, dataset: RealVideoDataset, inputs: dict[str, li
     )
     lines.append(
         "Scores, per video from its clips' averaged class probabilities: `material_score` = "
-        "expected class id 0..53 (stretch-major stiffness ordering: the thesis's predicted "
-        "class number), `stretch_score` = expected stretch index 0..5, `bend_score` = expected "
-        "bend index 0..8.\n"
+        f"expected class id 0..{grid.num_classes - 1} (stretch-major stiffness ordering: the "
+        "thesis's predicted class number), `stretch_score` = expected stretch index "
+        f"0..{grid.stretch_count - 1}, `bend_score` = expected bend index "
+        f"0..{grid.bend_count - 1}.\n"
     )
     header = [
         "input", "score", "measured", "videos", "groups", "Pearson r [95% CI]", "p",
@@ -523,7 +633,8 @@ def run(cfg: DictConfig) -> dict:
     module = load_classifier(ckpt)
     data_dir = None if cfg.data_dir is None else Path(cfg.data_dir)
     real_dir = None if cfg.real_dir is None else Path(cfg.real_dir)
-    check_class_count(module, checkpoint=ckpt, dataset=data_dir or real_dir)
+    grid = module_grid(module) if data_dir is None else dataset_grid(data_dir)
+    check_class_count(module, checkpoint=ckpt, dataset=data_dir or real_dir, grid=grid)
     parent = Path(cfg.out_dir) if cfg.out_dir else _default_out_dir(ckpt)
     folder, inputs = evaluation_folder(parent, ckpt, data_dir, real_dir, settings)
     if (folder / FINISHED).is_file() and not settings["overwrite"]:

@@ -1,10 +1,13 @@
-"""LightningModule that trains any clip classifier net on the 54 material classes.
+"""LightningModule that trains any clip classifier net on the data's material classes.
 
 It receives its ``net`` (and optimizer/scheduler factories) from the config, as in the
-lightning-hydra template; ``net_config`` (the net's plain ``_target_`` config) is stored in
-the checkpoint so that :func:`load_classifier` can rebuild the net without the training
-config. Batches are the datasets' dicts: clips (``video`` (B, T, 3, H, W)) or, for the
-per-frame baseline, frames (``image`` (B, 3, H, W)).
+lightning-hydra template; ``net_config`` (the net's plain ``_target_`` config, with the data's
+``num_classes``) and ``class_grid`` (the data's stretch x bend grid, plain numbers) are stored
+in the checkpoint so that :func:`load_classifier` can rebuild the net and read its classes
+without the training config. Batches are the datasets' dicts: clips (``video``
+(B, T, 3, H, W)) or, for the per-frame baseline, frames (``image`` (B, 3, H, W)).
+:meth:`MaterialClassifierModule.predict_step` serves Lightning's ``trainer.predict``, through
+which every evaluation runs (:func:`models.evaluate.predict`).
 
 Logged: ``train/loss``, ``train/acc``, ``val/loss``, ``val/acc``, ``val/acc_best``,
 ``val/top5``, ``val/stretch_acc``, ``val/bend_acc``, ``val/grid_mae`` (and ``test/*``).
@@ -23,7 +26,7 @@ import torch
 from hydra.utils import instantiate
 from torch import nn
 
-from .metrics import classification_metrics
+from .metrics import ClassGrid, classification_metrics
 
 __all__ = [
     "ENCODER_CHECKPOINT_KEYS",
@@ -39,9 +42,13 @@ ENCODER_MODULES = ("encoder", "motion_encoder")
 """Attributes of the nets that hold frame encoders (the CNNs ``encoder_lr_scale`` applies to)."""
 
 
+PIXELS = ("video", "image")
+"""Batch keys of the pixels (clip mode, frame mode); every other key is the samples' metadata."""
+
+
 def batch_input(batch: dict) -> torch.Tensor:
     """The pixels of a batch: ``video`` (clip mode) or ``image`` (frame mode)."""
-    for key in ("video", "image"):
+    for key in PIXELS:
         if key in batch:
             return batch[key]
     raise KeyError(f"batch has neither 'video' nor 'image' (keys: {sorted(batch)})")
@@ -51,7 +58,7 @@ class MaterialClassifierModule(L.LightningModule):
     """Cross-entropy training and epoch-level metrics of a clip classifier.
 
     Args:
-        net: Maps (B, T, 3, H, W) (or (B, 3, H, W) for frame models) to logits (B, 54).
+        net: Maps (B, T, 3, H, W) (or (B, 3, H, W) for frame models) to logits (B, classes).
         optimizer: Factory ``params -> Optimizer`` (``_partial_`` config); default AdamW 1e-3.
         scheduler: Factory ``optimizer -> LRScheduler`` stepped per epoch, or ``None``.
         label_smoothing: Cross-entropy label smoothing.
@@ -60,6 +67,9 @@ class MaterialClassifierModule(L.LightningModule):
         encoder_lr_scale: The frame encoders' learning rate as a fraction of the optimizer's
             (discriminative fine-tuning: a CNN trained beforehand keeps its features while a
             new LSTM and classifier learn at the full rate); 1 = one rate for everything.
+        class_grid: The data's class grid (:class:`~models.metrics.ClassGrid` or its JSON, e.g.
+            the datamodule's ``class_grid``); the metrics need it. ``None``: the attached
+            datamodule's, when there is one.
     """
 
     def __init__(
@@ -72,6 +82,7 @@ class MaterialClassifierModule(L.LightningModule):
         net_config: dict | None = None,
         method: str = "",
         encoder_lr_scale: float = 1.0,
+        class_grid: ClassGrid | dict | None = None,
     ):
         super().__init__()
         if not 0 <= label_smoothing < 1:
@@ -82,7 +93,12 @@ class MaterialClassifierModule(L.LightningModule):
                 f"got {encoder_lr_scale!r}"
             )
         self.encoder_lr_scale = float(encoder_lr_scale)
-        self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
+        self.class_grid = None if class_grid is None else ClassGrid.from_json(class_grid)
+        self.save_hyperparameters(
+            logger=False, ignore=["net", "optimizer", "scheduler", "class_grid"]
+        )
+        if self.class_grid is not None:  # plain numbers in the checkpoint, never a config node
+            self.hparams["class_grid"] = self.class_grid.to_json()
         self.net = net
         self.optimizer_factory = optimizer
         self.scheduler_factory = scheduler
@@ -94,7 +110,7 @@ class MaterialClassifierModule(L.LightningModule):
         self._epoch_started: float | None = None
 
     def forward(self, pixels: torch.Tensor) -> torch.Tensor:
-        """Logits (B, 54) of clips or frames."""
+        """Logits (B, classes) of clips or frames."""
         return self.net(pixels)
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
@@ -122,6 +138,34 @@ class MaterialClassifierModule(L.LightningModule):
         """Collect the logits; metrics come at the epoch's end."""
         self._eval_step("test", batch)
 
+    def predict_step(self, batch: dict, batch_idx: int, dataloader_idx: int = 0) -> dict:
+        """The batch's logits (float32, on the CPU) and its samples' other fields.
+
+        ``meta`` is the batch without its pixels (labels, keys, wind levels, video names:
+        whatever the dataset's samples carry), for reports that break results down.
+        """
+        logits = self(batch_input(batch)).float().cpu()
+        meta = {
+            k: v.cpu() if isinstance(v, torch.Tensor) else v
+            for k, v in batch.items()
+            if k not in PIXELS
+        }
+        return {"logits": logits, "meta": meta}
+
+    def _grid(self) -> ClassGrid:
+        """The class grid of the metrics: this module's, else its trainer's datamodule's."""
+        if self.class_grid is None:
+            datamodule = getattr(self._trainer, "datamodule", None)
+            grid = getattr(datamodule, "class_grid", None)
+            if grid is None:
+                raise ValueError(
+                    "class_grid is unknown: pass model.class_grid (the data's, e.g. "
+                    "datamodule.class_grid) or train with a datamodule that has one"
+                )
+            self.class_grid = ClassGrid.from_json(grid)
+            self.hparams["class_grid"] = self.class_grid.to_json()
+        return self.class_grid
+
     def _epoch_metrics(self, split: str) -> None:
         outputs, self._outputs[split] = self._outputs[split], []
         if not outputs:
@@ -131,7 +175,7 @@ class MaterialClassifierModule(L.LightningModule):
         if self.trainer is not None and self.trainer.world_size > 1:
             logits = self.all_gather(logits).flatten(0, 1)
             labels = self.all_gather(labels).flatten(0, 1)
-        metrics = classification_metrics(logits.float(), labels)
+        metrics = classification_metrics(logits.float(), labels, self._grid())
         metrics["loss"] = float(self.loss(logits.float(), labels.long()))
         if split == "val" and not self.trainer.sanity_checking:
             self.best_val_acc = max(self.best_val_acc, metrics["acc"])
@@ -196,10 +240,22 @@ class MaterialClassifierModule(L.LightningModule):
         return {"optimizer": optimizer, "lr_scheduler": schedule}
 
 
+def _classifier_rows(state_dict: dict) -> int | None:
+    """Output classes of a stored net: the rows of its ``classifier`` layer (``None``: none)."""
+    weight = state_dict.get("net.classifier.weight")
+    return None if weight is None else int(weight.shape[0])
+
+
 def load_classifier(
     checkpoint: str | Path, map_location: str | torch.device = "cpu"
 ) -> MaterialClassifierModule:
-    """Rebuild a trained module from its checkpoint alone (net from the stored ``net_config``)."""
+    """Rebuild a trained module from its checkpoint alone (net from the stored ``net_config``).
+
+    Checkpoints written before the labels travelled with the data lack ``num_classes`` in
+    ``net_config`` and the ``class_grid`` hyper-parameter: the class count is read from the
+    stored classifier layer, and the grid is that of every dataset of that time, the 54
+    classes of ``wang54`` (:func:`datasets.manifest.legacy_class_grid`).
+    """
     path = Path(checkpoint)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
@@ -209,15 +265,27 @@ def load_classifier(
     net_config = copy.deepcopy(hparams.get("net_config"))
     if not net_config:
         raise ValueError(f"checkpoint {path} has no net_config; was it written by train.py?")
+    if "num_classes" not in net_config:  # written before the labels travelled with the data
+        rows = _classifier_rows(raw.get("state_dict", {}))
+        if rows is None:
+            raise ValueError(f"checkpoint {path} says neither num_classes nor a classifier layer")
+        net_config["num_classes"] = rows
+    stored_config = {**hparams["net_config"], "num_classes": net_config["num_classes"]}
     for key in ENCODER_CHECKPOINT_KEYS:
         if key in net_config:
             net_config[key] = None  # the encoders' weights are in this state dict
+    class_grid = hparams.get("class_grid")
+    if class_grid is None:
+        from datasets.manifest import legacy_class_grid
+
+        class_grid = legacy_class_grid()
     net = instantiate(net_config)
     module = MaterialClassifierModule(
         net,
         label_smoothing=float(hparams.get("label_smoothing", 0.0)),
-        net_config=hparams.get("net_config"),
+        net_config=stored_config,
         method=str(hparams.get("method", "")),
+        class_grid=class_grid,
     )
     module.load_state_dict(raw["state_dict"])
     module.best_val_acc = float(raw.get("best_val_acc", 0.0))

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.cloth.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
 from simulator.sequence import atomic_write_bytes
+
+from .metrics import ClassGrid
 
 __all__ = [
     "confusion_png", "markdown_table", "scatter_png", "wind_label", "write_json", "write_text",
@@ -90,11 +91,11 @@ def scatter_png(
     atomic_write_bytes(path, _png_bytes(fig))
 
 
-def confusion_png(path: str | Path, matrix: np.ndarray, title: str) -> None:
-    """Write the 54 x 54 confusion matrix as a PNG.
+def confusion_png(path: str | Path, matrix: np.ndarray, title: str, grid: ClassGrid) -> None:
+    """Write the confusion matrix over ``grid``'s classes (54 x 54 for the thesis's) as a PNG.
 
-    Rows are true classes, columns predicted, row-normalised; the 6 stretch blocks of 9 bend
-    classes are outlined.
+    Rows are true classes, columns predicted, row-normalised; the stretch blocks of bend
+    classes (6 blocks of 9 for the thesis's grid) are outlined.
     """
     import matplotlib
 
@@ -104,17 +105,18 @@ def confusion_png(path: str | Path, matrix: np.ndarray, title: str) -> None:
     counts = np.asarray(matrix, dtype=np.float64)
     rows = counts.sum(axis=1, keepdims=True)
     share = np.divide(counts, rows, out=np.zeros_like(counts), where=rows > 0)
-    bends = len(BEND_MULTIPLIERS)
+    bends = grid.bend_count
     fig, ax = plt.subplots(figsize=(7.5, 6.5), dpi=110)
     image = ax.imshow(share, cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest")
     for edge in range(bends, counts.shape[0], bends):
         ax.axhline(edge - 0.5, color="white", linewidth=0.6)
         ax.axvline(edge - 0.5, color="white", linewidth=0.6)
-    centres = [s * bends + (bends - 1) / 2 for s in range(len(STRETCH_MULTIPLIERS))]
-    names = [f"p{m:g}" for m in STRETCH_MULTIPLIERS]
+    centres = [s * bends + (bends - 1) / 2 for s in range(grid.stretch_count)]
+    names = [f"p{m:g}" for m in grid.stretch_multipliers]
     ax.set_xticks(centres, names)
     ax.set_yticks(centres, names)
-    ax.set_xlabel("predicted class (stretch block; bend 0.5..20 inside)")
+    low, high = grid.bend_multipliers[0], grid.bend_multipliers[-1]
+    ax.set_xlabel(f"predicted class (stretch block; bend {low:g}..{high:g} inside)")
     ax.set_ylabel("true class")
     ax.set_title(title, fontsize=10)
     fig.colorbar(image, ax=ax, fraction=0.046, pad=0.04, label="fraction of the true class")

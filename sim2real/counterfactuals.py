@@ -318,14 +318,17 @@ def group_scores(groups, logits: np.ndarray, stiffness, density) -> dict[str, np
     """
     import torch
 
+    from models.metrics import ClassGrid
     from models.scores import CORRELATED_SCORES, material_scores
+    from simulator.cloth.material import WANG54
 
     videos, rows = np.unique(np.asarray(groups), return_inverse=True)
     counts = np.bincount(rows)
     probs = torch.softmax(torch.as_tensor(logits), dim=1).numpy()
     mean = np.zeros((len(videos), probs.shape[1]))
     np.add.at(mean, rows, probs)
-    scores = material_scores(torch.as_tensor(mean / counts[:, None]))
+    grid = ClassGrid.from_json(WANG54.to_json())  # the diagnosis's classifiers are wang54's
+    scores = material_scores(torch.as_tensor(mean / counts[:, None]), grid)
     out = {name: scores[name].numpy() for name in CORRELATED_SCORES}
     out["stiffness"] = np.bincount(rows, np.asarray(stiffness, dtype=float)) / counts
     out["density"] = np.bincount(rows, np.asarray(density, dtype=float)) / counts

@@ -3,9 +3,9 @@
 ``python -m benchmarks.thesis.table72`` reads
 ``logs/train/<dataset>[-seq]-<method>/eval/sim_test.json`` of the wind and arm datasets (the
 runs of ``python train.py -m experiment=train/<method> dataset=wind,arm``; ``-seq``: the
-thesis's sub-sequence split, ``protocol=sequence``), copies each into the results ledger ``reports/runs/<run name>.json``
-(committed: run folders are not, so a fresh checkout rebuilds the same table from the ledger)
-and writes ``docs/results/table72.md`` (``--out``); with
+thesis's sub-sequence split, ``protocol=sequence``), copies each into the results ledger
+``reports/runs/<run name>.json`` (committed: run folders are not, so a fresh checkout rebuilds
+the same table from the ledger) and writes ``docs/results/table72.md`` (``--out``); with
 ``--readme FILE`` it also replaces the block between ``<!-- table72:start -->`` and
 ``<!-- table72:end -->`` in that file (never by default). Missing runs show as "-"; the
 thesis's numbers for the same mesh level (Unif-k / Randk) stand beside ours.

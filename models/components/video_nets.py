@@ -1,6 +1,8 @@
 """Clip classifiers over a per-frame encoder: the thesis's CNN+LSTM and its two baselines.
 
-All take clips ``(B, T, 3, H, W)`` in [0, 1] and return class logits ``(B, num_classes)``.
+All take clips ``(B, T, 3, H, W)`` in [0, 1] and return class logits ``(B, num_classes)``;
+``num_classes`` is the data's (its material set's class count, which ``train.py`` reads from
+the datamodule), never a constant of the simulator.
 
 * :class:`CNNLSTMNet` (thesis 7.5.1, LRCN of Donahue et al. 2015): fc6 features of every
   frame feed an LSTM; a linear layer reads each step's hidden state and, as in LRCN, the
@@ -29,8 +31,6 @@ from pathlib import Path
 
 import torch
 from torch import nn
-
-from simulator.cloth.material import CLASS_COUNT
 
 from .frame_encoder import FrameEncoder
 
@@ -105,7 +105,7 @@ class CNNLSTMNet(nn.Module):
         encoder: Per-frame encoder giving fc6 features.
         hidden_size: LSTM hidden units.
         num_layers: Stacked LSTM layers.
-        num_classes: Output classes (54 material classes).
+        num_classes: Output classes (the data's material classes; 54 for the thesis's set).
         readout: ``mean`` of the per-step logits (LRCN) or the ``last`` step's.
         freeze_encoder: Keep the encoder fixed (baseline 2); it also stays in eval mode.
         encoder_checkpoint: Load encoder weights from this checkpoint first (baseline 2).
@@ -123,7 +123,7 @@ class CNNLSTMNet(nn.Module):
         *,
         hidden_size: int = 256,
         num_layers: int = 1,
-        num_classes: int = CLASS_COUNT,
+        num_classes: int,
         readout: str = "mean",
         freeze_encoder: bool = False,
         encoder_checkpoint: str | None = None,
@@ -198,10 +198,10 @@ class FramePoolNet(nn.Module):
 
     Args:
         encoder: Per-frame encoder giving fc6 features.
-        num_classes: Output classes.
+        num_classes: Output classes (the data's material classes).
     """
 
-    def __init__(self, encoder: FrameEncoder, *, num_classes: int = CLASS_COUNT):
+    def __init__(self, encoder: FrameEncoder, *, num_classes: int):
         super().__init__()
         if not isinstance(num_classes, int) or num_classes < 1:
             raise ValueError(f"num_classes must be an integer >= 1, got {num_classes!r}")

@@ -1,10 +1,10 @@
 """Cloth wing: fabrics, the 54-class subspace, scenes, effect switches and rollouts.
 
-Built on the solver core (:mod:`simulator`): :mod:`.material` (measured fabrics, the
-subspace), :mod:`.model` (a cloth :class:`~simulator.model.SimModel` from a mesh, materials
-and switches), :mod:`.scenes` (wind and arm), :mod:`.wind`, :mod:`.effects` (the physical
-switches), :mod:`.rollout` (batched simulation to a mesh sequence), :mod:`.sensitivity` and
-the Hydra entry :mod:`.simulate`.
+Built on the solver core (:mod:`simulator`): :mod:`.material` (measured fabrics, material
+sets such as the 54-class subspace), :mod:`.model` (a cloth :class:`~simulator.model.SimModel`
+from a mesh, materials and switches), :mod:`.scenes` (wind and arm), :mod:`.wind`,
+:mod:`.effects` (the physical switches), :mod:`.rollout` (batched simulation to a mesh
+sequence), :mod:`.sensitivity` and the Hydra entry :mod:`.simulate`.
 """
 
 from .effects import PHYSICS_EFFECT_NAMES, PhysicsEffects
@@ -13,7 +13,9 @@ from .material import (
     BEND_MULTIPLIERS,
     CLASS_COUNT,
     STRETCH_MULTIPLIERS,
+    WANG54,
     ClothMaterial,
+    MaterialSet,
     WangMaterial,
     class_summary,
     load_wang_material,
@@ -30,8 +32,10 @@ __all__ = [
     "PHYSICS_EFFECT_NAMES",
     "RESOLUTION_LEVELS",
     "STRETCH_MULTIPLIERS",
+    "WANG54",
     "ClothMaterial",
     "ClothModelKind",
+    "MaterialSet",
     "PhysicsEffects",
     "ScenarioArmBend",
     "ScenarioWind",

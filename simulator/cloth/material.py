@@ -21,12 +21,17 @@ How the numbers become forces (see also :mod:`simulator.energies.membrane` and
 The thesis's subspace (section 7.4.2.2) multiplies the basis ``camel-ponte-roma``
 stretching by ``p`` and bending by ``k``. Class ids run stretch-major,
 ``class_id = stretch_index * 9 + bend_index``, so a larger id is generally stiffer,
-as the thesis's correlation study assumes.
+as the thesis's correlation study assumes. A :class:`MaterialSet` is such a class grid (basis
+fabric and the two multiplier lists); :data:`WANG54` is the thesis's, and the module-level
+functions (:func:`multipliers_from_class`, :func:`class_summary`, ...) are its methods. A
+generated dataset carries its set in its spec and manifest, so training and evaluation learn
+the classes from the data (``configs/material_set/``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 from collections.abc import Iterable, Mapping
@@ -48,8 +53,10 @@ __all__ = [
     "CLASS_COUNT",
     "STRETCH_MULTIPLIERS",
     "STRETCH_SAMPLE_STRAIN",
+    "WANG54",
     "ClothMaterial",
     "MaterialError",
+    "MaterialSet",
     "WangMaterial",
     "check_class_ids",
     "class_from_multipliers",
@@ -150,31 +157,207 @@ def stabilize_stretching(stretching: np.ndarray) -> np.ndarray:
     return out
 
 
+def _nearest_log(value: float, choices: tuple[float, ...]) -> float:
+    return min(choices, key=lambda c: abs(math.log(value) - math.log(c)))
+
+
+def _effective_stretch(stretching: np.ndarray) -> float:
+    """Mean warp/weft tension stiffness over all six rows [N/m]."""
+    return float(0.5 * (stretching[:, 0] + stretching[:, 2]).mean())
+
+
+MATERIAL_SET_FIELDS = ("name", "basis", "stretch_multipliers", "bend_multipliers")
+GRID_FIELDS = ("num_classes", "stretch_count", "bend_count")
+"""The grid's counts, written by :meth:`MaterialSet.to_json` beside the fields (checked when
+read back)."""
+
+
+def _multiplier_list(values: Any, field: str) -> tuple[float, ...]:
+    """``values`` as floats if they form a non-empty, strictly increasing list of numbers > 0."""
+    numbers: tuple[float, ...] = ()
+    if isinstance(values, Iterable) and not isinstance(values, str | bytes | Mapping):
+        items = list(values)
+        if all(isinstance(v, int | float | np.number) and not isinstance(v, bool) for v in items):
+            numbers = tuple(float(v) for v in items)
+    valid = bool(numbers) and all(math.isfinite(v) and v > 0 for v in numbers)
+    if not valid or any(a >= b for a, b in itertools.pairwise(numbers)):
+        raise MaterialError(
+            f"{field} must be a non-empty, strictly increasing list of numbers > 0, got {values!r}"
+        )
+    return numbers
+
+
+@dataclasses.dataclass(frozen=True)
+class MaterialSet:
+    """The classes of a dataset: one basis fabric with its stretching x p and bending x k.
+
+    Class ids run stretch-major over the grid of the two multiplier lists,
+    ``class_id = stretch_index * bend_count + bend_index``; both lists are strictly
+    increasing, so a larger id is generally stiffer. Density is the basis's for every class.
+    """
+
+    name: str
+    """Short name, e.g. ``wang54`` (``configs/material_set/<name>.yaml``)."""
+    basis: str
+    """A shipped fabric (:func:`wang_material_names`) whose stretching and bending are scaled."""
+    stretch_multipliers: tuple[float, ...]
+    """p of each stretch index, increasing."""
+    bend_multipliers: tuple[float, ...]
+    """k of each bend index, increasing."""
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise MaterialError(f"material_set.name must be a non-empty name, got {self.name!r}")
+        if self.basis not in wang_material_names():
+            raise MaterialError(
+                f"material_set.basis must be one of {wang_material_names()}, got {self.basis!r}"
+            )
+        for field in ("stretch_multipliers", "bend_multipliers"):
+            numbers = _multiplier_list(getattr(self, field), f"material_set.{field}")
+            object.__setattr__(self, field, numbers)
+
+    @property
+    def stretch_count(self) -> int:
+        """Stretch indices (rows of the grid)."""
+        return len(self.stretch_multipliers)
+
+    @property
+    def bend_count(self) -> int:
+        """Bend indices (columns of the grid)."""
+        return len(self.bend_multipliers)
+
+    @property
+    def class_count(self) -> int:
+        """Classes: ``stretch_count * bend_count``."""
+        return self.stretch_count * self.bend_count
+
+    def to_json(self) -> dict:
+        """Plain JSON: the fields and the grid's counts (a manifest's ``material_set``)."""
+        return {
+            "name": self.name,
+            "basis": self.basis,
+            "stretch_multipliers": list(self.stretch_multipliers),
+            "bend_multipliers": list(self.bend_multipliers),
+            "num_classes": self.class_count,
+            "stretch_count": self.stretch_count,
+            "bend_count": self.bend_count,
+        }
+
+    @classmethod
+    def from_json(cls, data: Any, field: str = "material_set") -> MaterialSet:
+        """A set from :meth:`to_json`'s form or a config node's fields (counts optional).
+
+        Raises:
+            MaterialError: naming ``field`` and its first missing, unknown or bad entry.
+        """
+        if not isinstance(data, Mapping):
+            raise MaterialError(f"{field} must be a mapping with {list(MATERIAL_SET_FIELDS)}")
+        unknown = sorted(set(data) - {*MATERIAL_SET_FIELDS, *GRID_FIELDS})
+        missing = [k for k in MATERIAL_SET_FIELDS if k not in data]
+        if unknown or missing:
+            raise MaterialError(
+                f"{field} needs {list(MATERIAL_SET_FIELDS)}; unknown {unknown}, missing {missing}"
+            )
+        try:
+            out = cls(*(data[k] for k in MATERIAL_SET_FIELDS))
+        except MaterialError as err:
+            raise MaterialError(str(err).replace("material_set", field, 1)) from None
+        stored = {k: data[k] for k in GRID_FIELDS if k in data}
+        grid = {k: v for k, v in out.to_json().items() if k in stored}
+        if stored != grid:
+            raise MaterialError(f"{field}: counts {stored} do not match its multipliers {grid}")
+        return out
+
+    def multipliers(self, class_id: int) -> tuple[float, float]:
+        """(stretch multiplier p, bend multiplier k) of a class id."""
+        top = self.class_count - 1
+        if not isinstance(class_id, int | np.integer) or not 0 <= int(class_id) <= top:
+            raise MaterialError(f"class_id must be an integer in [0, {top}], got {class_id!r}")
+        s, b = divmod(int(class_id), self.bend_count)
+        return self.stretch_multipliers[s], self.bend_multipliers[b]
+
+    def class_of(self, stretch_mult: float, bend_mult: float) -> int:
+        """Class id of an exact (p, k) pair of the grid."""
+        try:
+            s = self.stretch_multipliers.index(float(stretch_mult))
+            b = self.bend_multipliers.index(float(bend_mult))
+        except ValueError as err:
+            raise MaterialError(
+                f"(stretch_mult, bend_mult) = ({stretch_mult}, {bend_mult}) is not in the "
+                f"subspace; allowed stretch {self.stretch_multipliers}, bend "
+                f"{self.bend_multipliers}"
+            ) from err
+        return s * self.bend_count + b
+
+    def nearest(self, stretch_ratio: float, bend_ratio: float) -> tuple[int, float, float]:
+        """Quantise estimated ratios to the grid (nearest in log scale): (class id, p, k)."""
+        p = _nearest_log(stretch_ratio, self.stretch_multipliers)
+        k = _nearest_log(bend_ratio, self.bend_multipliers)
+        return self.class_of(p, k), p, k
+
+    def summary(self, class_id: int, basis: WangMaterial | None = None) -> dict[str, float]:
+        """Physical summary values of a class (see :func:`class_summary`)."""
+        basis = basis or load_wang_material(self.basis)
+        p, k = self.multipliers(class_id)
+        return {
+            "class_id": int(class_id),
+            "stretch_mult": p,
+            "bend_mult": k,
+            "stretch_stiffness": p * _effective_stretch(basis.stretching),
+            "bend_stiffness": k * float(basis.bending.mean()),
+            "density": basis.density,
+        }
+
+    def materials(self, class_ids, *, dtype: torch.dtype = torch.float64) -> ClothMaterial:
+        """Batch of classes: the basis fabric times each class's (p, k)."""
+        # Integral floats (1.0) name a class; others (1.7) are refused, never truncated.
+        ids = [
+            int(c) if isinstance(c, float) and c.is_integer() else c
+            for c in np.atleast_1d(np.asarray(class_ids)).tolist()
+        ]
+        pk = [self.multipliers(c) for c in ids]
+        return ClothMaterial.from_wang(
+            load_wang_material(self.basis),
+            stretch_mult=[p for p, _ in pk],
+            bend_mult=[k for _, k in pk],
+            dtype=dtype,
+        )
+
+    def check_class_ids(self, values: Any, field: str = "classes") -> tuple[int, ...]:
+        """Class ids as ints; refuses a non-list, text and non-integral numbers.
+
+        ``1.0`` is class 1; ``1.7`` is refused rather than truncated to class 1.
+        """
+        top = self.class_count - 1
+        allowed = f"integer class ids in [0, {top}], e.g. {field}=[0,{top // 2},{top}]"
+        if isinstance(values, str | bytes | Mapping) or not isinstance(values, Iterable):
+            raise InputError(f"{field} must be a list of {allowed}; got {values!r}")
+        ids = []
+        for position, value in enumerate(values):
+            integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+            if isinstance(value, bool) or not integral or not 0 <= value <= top:
+                raise InputError(
+                    f"{field}[{position}] must be an integer class id in [0, {top}], got {value!r}"
+                )
+            ids.append(int(value))
+        if not ids:
+            raise InputError(f"{field} must be a non-empty list of {allowed}; got []")
+        return tuple(ids)
+
+
+WANG54 = MaterialSet("wang54", BASIS_MATERIAL, STRETCH_MULTIPLIERS, BEND_MULTIPLIERS)
+"""The thesis's 54 classes (``configs/material_set/wang54.yaml``); also the set of every
+dataset and checkpoint written before the sets travelled with the data."""
+
+
 def multipliers_from_class(class_id: int) -> tuple[float, float]:
     """(stretch multiplier p, bend multiplier k) of a class id in [0, 53]."""
-    if not isinstance(class_id, int | np.integer) or not 0 <= int(class_id) < CLASS_COUNT:
-        raise MaterialError(
-            f"class_id must be an integer in [0, {CLASS_COUNT - 1}], got {class_id!r}"
-        )
-    s, b = divmod(int(class_id), len(BEND_MULTIPLIERS))
-    return STRETCH_MULTIPLIERS[s], BEND_MULTIPLIERS[b]
+    return WANG54.multipliers(class_id)
 
 
 def class_from_multipliers(stretch_mult: float, bend_mult: float) -> int:
     """Class id of an exact (p, k) pair of the subspace."""
-    try:
-        s = STRETCH_MULTIPLIERS.index(float(stretch_mult))
-        b = BEND_MULTIPLIERS.index(float(bend_mult))
-    except ValueError as err:
-        raise MaterialError(
-            f"(stretch_mult, bend_mult) = ({stretch_mult}, {bend_mult}) is not in the subspace; "
-            f"allowed stretch {STRETCH_MULTIPLIERS}, bend {BEND_MULTIPLIERS}"
-        ) from err
-    return s * len(BEND_MULTIPLIERS) + b
-
-
-def _nearest_log(value: float, choices: tuple[float, ...]) -> float:
-    return min(choices, key=lambda c: abs(math.log(value) - math.log(c)))
+    return WANG54.class_of(stretch_mult, bend_mult)
 
 
 def nearest_class(stretch_ratio: float, bend_ratio: float) -> tuple[int, float, float]:
@@ -183,14 +366,7 @@ def nearest_class(stretch_ratio: float, bend_ratio: float) -> tuple[int, float, 
     Returns:
         (class id, p, k).
     """
-    p = _nearest_log(stretch_ratio, STRETCH_MULTIPLIERS)
-    k = _nearest_log(bend_ratio, BEND_MULTIPLIERS)
-    return class_from_multipliers(p, k), p, k
-
-
-def _effective_stretch(stretching: np.ndarray) -> float:
-    """Mean warp/weft tension stiffness over all six rows [N/m]."""
-    return float(0.5 * (stretching[:, 0] + stretching[:, 2]).mean())
+    return WANG54.nearest(stretch_ratio, bend_ratio)
 
 
 def class_summary(class_id: int, basis: WangMaterial | None = None) -> dict[str, float]:
@@ -201,16 +377,7 @@ def class_summary(class_id: int, basis: WangMaterial | None = None) -> dict[str,
     its fifteen bending samples; ``density`` [kg/m²] is the basis's (the subspace
     does not vary density).
     """
-    basis = basis or load_wang_material(BASIS_MATERIAL)
-    p, k = multipliers_from_class(class_id)
-    return {
-        "class_id": int(class_id),
-        "stretch_mult": p,
-        "bend_mult": k,
-        "stretch_stiffness": p * _effective_stretch(basis.stretching),
-        "bend_stiffness": k * float(basis.bending.mean()),
-        "density": basis.density,
-    }
+    return WANG54.summary(class_id, basis)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -272,36 +439,12 @@ class ClothMaterial:
     @staticmethod
     def from_classes(class_ids, *, dtype: torch.dtype = torch.float64) -> ClothMaterial:
         """Batch of subspace classes (basis ``camel-ponte-roma`` times (p, k))."""
-        # Integral floats (1.0) name a class; others (1.7) are refused, never truncated.
-        ids = [
-            int(c) if isinstance(c, float) and c.is_integer() else c
-            for c in np.atleast_1d(np.asarray(class_ids)).tolist()
-        ]
-        pk = [multipliers_from_class(c) for c in ids]
-        return ClothMaterial.from_wang(
-            load_wang_material(BASIS_MATERIAL),
-            stretch_mult=[p for p, _ in pk],
-            bend_mult=[k for _, k in pk],
-            dtype=dtype,
-        )
+        return WANG54.materials(class_ids, dtype=dtype)
+
 
 def check_class_ids(values: Any, field: str = "classes") -> tuple[int, ...]:
     """Subspace class ids as ints; refuses a non-list, text and non-integral numbers.
 
     ``1.0`` is class 1; ``1.7`` is refused rather than truncated to class 1.
     """
-    allowed = f"integer class ids in [0, {CLASS_COUNT - 1}], e.g. {field}=[0,26,53]"
-    if isinstance(values, str | bytes | Mapping) or not isinstance(values, Iterable):
-        raise InputError(f"{field} must be a list of {allowed}; got {values!r}")
-    ids = []
-    for position, value in enumerate(values):
-        integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
-        if isinstance(value, bool) or not integral or not 0 <= value < CLASS_COUNT:
-            raise InputError(
-                f"{field}[{position}] must be an integer class id in [0, {CLASS_COUNT - 1}], "
-                f"got {value!r}"
-            )
-        ids.append(int(value))
-    if not ids:
-        raise InputError(f"{field} must be a non-empty list of {allowed}; got []")
-    return tuple(ids)
+    return WANG54.check_class_ids(values, field)

@@ -8,9 +8,12 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 
 import models.evaluate as evaluate
+from datasets.manifest import legacy_class_grid
+from models.metrics import ClassGrid
 from models.report import wind_label
 from models.scores import CORRELATED_SCORES
 from simulator.errors import InputError
@@ -160,3 +163,32 @@ def test_wind_levels_are_reported_as_w1_w2_w3():
     assert [wind_label(level) for level in (0, 1, 2, "2", -1)] == ["W1", "W2", "W3", "W3", "none"]
     assert evaluate._breakdown_label("wind_level", "0") == "wind W1"
     assert evaluate._breakdown_label("clip_index", "1") == "clip index 1"
+
+
+def test_predict_runs_the_modules_predict_step_through_lightning(tmp_path):
+    module = evaluate.load_classifier(write_checkpoint(tmp_path / "run" / "best.ckpt"))
+    generator = torch.Generator().manual_seed(0)
+    clips = [{"video": torch.rand(4, 3, 32, 32, generator=generator), "label": i, "key": f"k{i}"}
+             for i in range(5)]  # fmt: skip
+    cpu = torch.device("cpu")
+    logits, meta = evaluate.predict(module, clips, batch_size=2, device=cpu, class_count=54)
+    with torch.no_grad():
+        expected = module.eval()(torch.stack([c["video"] for c in clips]))
+    torch.testing.assert_close(logits, expected)
+    assert meta == [{"label": i, "key": f"k{i}"} for i in range(5)]
+    with pytest.raises(InputError, match="predicts 54 classes but the dataset has 10"):
+        evaluate.predict(module, clips, device=cpu, class_count=10)
+
+
+def test_checkpoints_from_before_the_class_grid_read_as_wang54(tmp_path):
+    """No ``num_classes`` in the net config, no ``class_grid``: as train.py used to write them."""
+    path = write_checkpoint(tmp_path / "old.ckpt")
+    raw = torch.load(path, weights_only=False)
+    raw["hyper_parameters"]["net_config"].pop("num_classes")
+    assert "class_grid" not in raw["hyper_parameters"]
+    torch.save(raw, path)
+    module = evaluate.load_classifier(path)
+    assert module.net.classifier.out_features == 54
+    assert module.hparams["net_config"]["num_classes"] == 54
+    assert module.class_grid == ClassGrid.from_json(legacy_class_grid())
+    assert evaluate.module_grid(module).num_classes == 54

@@ -6,8 +6,12 @@ import torch
 from scipy import stats
 
 from models.correlation import correlate
-from models.metrics import breakdown_metrics, classification_metrics, confusion_matrix
+from models.metrics import ClassGrid, breakdown_metrics, classification_metrics, confusion_matrix
 from models.scores import material_scores
+from simulator.cloth.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
+
+GRID = ClassGrid(STRETCH_MULTIPLIERS, BEND_MULTIPLIERS)
+"""The thesis's 6 x 9 grid, handed to the metrics as the data hands it."""
 
 
 def _logits(predicted, runner_up=None):
@@ -23,7 +27,7 @@ def test_classification_metrics_by_hand():
     labels = torch.tensor([0, 10, 53, 20])
     # predicted: exact; same stretch other bend (1,3); other stretch same bend (4,8); (0,0)
     logits = _logits([0, 12, 44, 0], runner_up=[1, 10, 53, 30])
-    m = classification_metrics(logits, labels)
+    m = classification_metrics(logits, labels, GRID)
     assert m["acc"] == pytest.approx(0.25)
     assert m["top5"] == pytest.approx(0.75)  # the last's runner-up (30) is wrong
     assert m["stretch_acc"] == pytest.approx(0.5)
@@ -31,10 +35,10 @@ def test_classification_metrics_by_hand():
     assert m["stretch_mae"] == pytest.approx((0 + 0 + 1 + 2) / 4)
     assert m["bend_mae"] == pytest.approx((0 + 2 + 0 + 2) / 4)
     assert m["grid_mae"] == pytest.approx(m["stretch_mae"] + m["bend_mae"])
-    matrix = confusion_matrix(labels, logits.argmax(1))
+    matrix = confusion_matrix(labels, logits.argmax(1), GRID.num_classes)
     assert matrix.sum() == 4 and matrix[20, 0] == 1 and matrix[10, 12] == 1
     with pytest.raises(ValueError, match="logits must be"):
-        classification_metrics(torch.zeros(3, 10), torch.zeros(3))
+        classification_metrics(torch.zeros(3, 10), torch.zeros(3), GRID)
 
 
 def test_breakdown_gives_each_clip_position_its_own_metrics():
@@ -42,24 +46,24 @@ def test_breakdown_gives_each_clip_position_its_own_metrics():
     labels = torch.tensor([0, 0, 53, 53])
     logits = _logits([0, 5, 53, 50])
     meta = [{"wind_level": -1, "clip_index": k} for k in (0, 1, 0, 1)]
-    out = breakdown_metrics(logits, labels, meta)
+    out = breakdown_metrics(logits, labels, meta, GRID)
     assert set(out) == {"by_clip_index"}  # one wind level: no wind breakdown
     first, second = out["by_clip_index"]["0"], out["by_clip_index"]["1"]
     assert first["clips"] == second["clips"] == 2
     assert first["acc"] == 1.0 and second["acc"] == 0.0
     assert second["stretch_acc"] == 1.0 and second["bend_mae"] == pytest.approx((5 + 3) / 2)
     wind = [{"wind_level": w, "clip_index": 0} for w in (2, 0, 2, 1)]
-    assert list(breakdown_metrics(logits, labels, wind)) == ["by_wind_level"]
-    assert list(breakdown_metrics(logits, labels, wind)["by_wind_level"]) == ["0", "1", "2"]
+    assert list(breakdown_metrics(logits, labels, wind, GRID)) == ["by_wind_level"]
+    assert list(breakdown_metrics(logits, labels, wind, GRID)["by_wind_level"]) == ["0", "1", "2"]
 
 
 def test_material_scores_are_positions_in_the_stiffness_ordering():
     probs = torch.nn.functional.one_hot(torch.tensor([0, 13, 53]), 54).double()
-    scores = material_scores(probs)
+    scores = material_scores(probs, GRID)
     assert scores["material_score"].tolist() == [0, 13, 53]
     assert scores["stretch_score"].tolist() == [0, 1, 5]
     assert scores["bend_score"].tolist() == [0, 4, 8]
-    uniform = material_scores(torch.full((1, 54), 1 / 54, dtype=torch.float64))
+    uniform = material_scores(torch.full((1, 54), 1 / 54, dtype=torch.float64), GRID)
     assert uniform["material_score"].item() == pytest.approx(26.5)
     assert uniform["bend_score"].item() == pytest.approx(4.0)
 
@@ -111,3 +115,24 @@ def test_grouped_bootstrap_counts_fabrics_not_videos():
     # fewer than 3 groups: r is defined, intervals and p-values are not
     few = correlate(videos[0][:6], videos[1][:6], groups=[0, 0, 0, 1, 1, 1], rounds=50)
     assert few.pearson is not None and few.pearson_ci is None and few.pearson_p is None
+
+
+def test_metrics_and_scores_follow_the_grid_they_are_given():
+    grid = ClassGrid.from_json(
+        {"stretch_multipliers": [1, 2], "bend_multipliers": [1, 2, 4], "num_classes": 6}
+    )
+    assert (grid.num_classes, grid.stretch_count, grid.bend_count) == (6, 2, 3)
+    scores = material_scores(torch.nn.functional.one_hot(torch.tensor([0, 4, 5]), 6).double(), grid)
+    assert scores["stretch_score"].tolist() == [0, 1, 1]
+    assert scores["bend_score"].tolist() == [0, 1, 2]
+    logits = torch.zeros(2, 6)
+    logits[0, 5], logits[1, 1] = 1.0, 1.0  # true 2 = (0, 2) -> 5 = (1, 2); true 1 -> 1
+    m = classification_metrics(logits, torch.tensor([2, 1]), grid)
+    assert (m["acc"], m["bend_acc"], m["stretch_mae"]) == (0.5, 1.0, 0.5)
+    with pytest.raises(ValueError, match=r"probs must have shape \(N, 6\)"):
+        material_scores(torch.zeros(1, 54), grid)
+    with pytest.raises(ValueError, match="counts"):
+        ClassGrid.from_json({**grid.to_json(), "num_classes": 54})
+    with pytest.raises(ValueError, match="class_grid must have stretch_multipliers"):
+        ClassGrid.from_json({"num_classes": 6})
+    assert ClassGrid.from_json(GRID.to_json()) == GRID and GRID.num_classes == 54

@@ -1,17 +1,19 @@
 """Shapes, gradients, freezing and weight loading of the encoders and clip nets."""
 
+import functools
 import logging
 
 import pytest
 import torch
 
+from models.components import video_nets
 from models.components.frame_encoder import ENCODERS, FrameEncoder
-from models.components.video_nets import (
-    CNNLSTMNet,
-    FramePoolNet,
-    frame_differences,
-    load_encoder_state,
-)
+from models.components.video_nets import frame_differences, load_encoder_state
+
+CLASSES = 54
+"""The thesis's classes; the nets take the data's class count (num_classes) as an argument."""
+CNNLSTMNet = functools.partial(video_nets.CNNLSTMNet, num_classes=CLASSES)
+FramePoolNet = functools.partial(video_nets.FramePoolNet, num_classes=CLASSES)
 
 
 def _clips(batch=2, steps=3, size=64, seed=0):
@@ -121,6 +123,14 @@ def test_two_stream_reads_frames_and_differences_from_their_own_checkpoints(tmp_
     with pytest.raises(ValueError, match="motion_encoder is needed"):
         CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25),
                    motion_encoder=FrameEncoder(feature_dim=4, width=0.25))  # fmt: skip
+
+
+def test_the_class_count_is_an_argument_of_every_net():
+    encoder = FrameEncoder(feature_dim=4, width=0.25)
+    for net in (video_nets.CNNLSTMNet, video_nets.FramePoolNet):
+        with pytest.raises(TypeError, match="num_classes"):
+            net(encoder)
+        assert net(encoder, num_classes=10)(_clips(steps=2, size=32)).shape == (2, 10)
 
 
 def test_bad_arguments_name_the_field():

@@ -71,7 +71,7 @@ def test_every_experiment_composes_and_builds_its_model(method, dataset, protoco
         assert list(cfg.data.augment.crop_scale) == [1.0, 1.0] and cfg.data.augment.flip_prob == 0
     if cfg.model.method in ("base2", "cnn_lstm_ft", "cnn_lstm_2s"):
         cfg.model.net.encoder_checkpoint = None  # baseline 1 is not trained here
-    module = instantiate(cfg.model)
+    module = instantiate(cfg.model, net={"num_classes": 54})  # train.py: the data's count
     assert module(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
 
 
@@ -98,7 +98,8 @@ def test_the_readme_recipe_is_diff_v_on_the_wind_grid_data():
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
     assert cfg.data.split_protocol == "simulation" and cfg.trainer.max_epochs == 20
     assert list(cfg.data.augment.crop_scale) == [1.0, 1.0] and cfg.data.augment.flip_prob == 0
-    assert instantiate(cfg.model)(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
+    module = instantiate(cfg.model, net={"num_classes": 54})
+    assert module(torch.rand(1, 3, 3, 64, 64)).shape == (1, 54)
 
 
 @pytest.mark.parametrize("protocol", _options("protocol"))
@@ -132,7 +133,8 @@ def test_missing_data_directory_fails_clearly(tmp_path):
 
 def test_encoder_lr_scale_gives_the_cnn_its_own_rate_through_the_schedule():
     cfg = _compose("train", ["model=cnn_lstm", "model.encoder_lr_scale=0.1",
-                             "trainer.max_epochs=4", "paths.output_dir=/tmp/x"])  # fmt: skip
+                             "trainer.max_epochs=4", "paths.output_dir=/tmp/x",
+                             "+model.net.num_classes=54"])  # fmt: skip
     module = instantiate(cfg.model)
     config = module.configure_optimizers()
     optimizer, scheduler = config["optimizer"], config["lr_scheduler"]["scheduler"]
@@ -143,7 +145,8 @@ def test_encoder_lr_scale_gives_the_cnn_its_own_rate_through_the_schedule():
     optimizer.step()
     scheduler.step()
     assert cnn["lr"] / rest["lr"] == pytest.approx(0.1) and rest["lr"] < 2e-3
-    plain = instantiate(_compose("train", ["model=cnn_lstm", "paths.output_dir=/tmp/x"]).model)
+    plain = instantiate(_compose("train", ["model=cnn_lstm", "paths.output_dir=/tmp/x"]).model,
+                        net={"num_classes": 54})  # fmt: skip
     assert len(plain.configure_optimizers()["optimizer"].param_groups) == 1
     for bad in (0.0, 1.5, True):
         with pytest.raises(Exception, match=r"model.encoder_lr_scale must be in \(0, 1\]"):
@@ -155,7 +158,8 @@ def test_tiny_batch_is_overfit(model):
     torch.manual_seed(0)
     cfg = _compose("train", [f"model={model}", "encoder.width=0.25", "encoder.dropout=0.0",
                              "encoder.feature_dim=32",
-                             "model.label_smoothing=0.0", "paths.output_dir=/tmp/x"])  # fmt: skip
+                             "model.label_smoothing=0.0", "paths.output_dir=/tmp/x",
+                             "+model.net.num_classes=54"])  # fmt: skip
     module = instantiate(cfg.model)
     video = torch.rand(6, 3, 3, 48, 48, generator=torch.Generator().manual_seed(0))
     labels = torch.tensor([0, 7, 19, 26, 40, 53])
@@ -178,6 +182,8 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     best = run / "checkpoints" / "best.ckpt"
     assert best.is_file() and (run / "checkpoints" / "last.ckpt").is_file()
     assert 0.0 <= metrics["test/acc"] <= 1.0
+    hparams = torch.load(best, weights_only=False)["hyper_parameters"]  # the data's classes
+    assert hparams["net_config"]["num_classes"] == hparams["class_grid"]["num_classes"] == 54
     for name in ("sim_test.json", "sim_test.md", "confusion_test.png"):
         assert (run / "eval" / name).stat().st_size > 0
     report = json.loads((run / "eval" / "sim_test.json").read_text())
@@ -255,6 +261,13 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
         assert (folder / name).stat().st_size > 0
     assert "Table 7.3" in (folder / "real.md").read_text()
     assert (run / "eval" / "sim_test.json").read_bytes() == training_report
+
+
+def test_the_class_count_comes_from_the_data(model_dataset, tmp_path):
+    cfg = _train_cfg(model_dataset, tmp_path / "run", "+model.net.num_classes=10")
+    message = r"model\.net\.num_classes must be the data's class count 54"
+    with pytest.raises(ValueError, match=message):
+        train_entry.train(cfg)
 
 
 def test_one_config_and_seed_train_the_same_weights(model_dataset, tmp_path):
