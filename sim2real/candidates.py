@@ -86,7 +86,11 @@ class Candidate:
 
         ``count`` points over the plausible range (log-spaced when it spans more than a
         factor 4; a scene field's nominal value left out), the non-default choices, or
-        ``(None,)`` for a binary switch.
+        ``(None,)`` for a binary switch. Where the neutral strength lies inside the range (a
+        frame-rate ratio of 1, a scene field's nominal value), ``count`` points on each side
+        of it, log-spaced for ratios (range over a factor 4 or more): one grid over the
+        whole range put a frame rate of 0.72 between 0.5 and 1.25, both of which scored
+        below zero, so it was never refined.
         """
         if self.choices:
             return tuple(c for c in self.choices if c != self.default)
@@ -94,6 +98,10 @@ class Candidate:
             return (None,)
         if count == 1:
             grid = np.array([math.sqrt(self.low * self.high) if self.low > 0 else self.high])
+        elif self.neutral is not None and self.low < self.neutral < self.high:
+            space = np.geomspace if self.low > 0 and self.high / self.low >= 4 else np.linspace
+            grid = np.concatenate([space(self.low, self.neutral, count + 1)[:-1],
+                                   space(self.neutral, self.high, count + 1)[1:]])  # fmt: skip
         elif self.log_scale:
             grid = np.geomspace(self.low, self.high, count)
         else:

@@ -49,6 +49,11 @@ def test_strength_grids_lie_in_the_plausible_range_and_apply_to_the_spec():
     assert damped.physics.air_damping_coefficient == 0.1
     assert damped.physics_key() != SPEC.physics_key()
     assert library["scene.pose"].strengths(3) == ("edge",)
+    # a neutral strength inside the range gets points on both sides, near it too
+    frame_rate = library["visual.frame_rate"].strengths(3)
+    assert frame_rate == pytest.approx([0.5, 0.63, 0.794, 1.26, 1.587, 2.0], rel=1e-3)
+    assert library["scene.wind_yaw_jitter_deg"].strengths(3) == (0, 5, 10, 25, 35, 45)
+    assert library["visual.sensor_noise"].strengths(3) == (0.5, 2.0, 8.0)  # neutral below
 
 
 def test_a_new_switch_in_a_registry_becomes_a_candidate_without_changes_in_sim2real():
