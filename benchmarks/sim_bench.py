@@ -11,7 +11,9 @@ class, wind, duration, 5 ms step, ``integrator="discrete"``, Newton) and the
 script prints the ratio. Medians over ``--repeats``.
 
 Backends (``--backends kernels,torch``, the first is the headline): the compiled CPU kernels
-(:mod:`simulator.kernels`) and the torch path, run side by side. Accuracy: the single
+(:mod:`simulator.kernels`; ``kernels`` runs each step's whole Newton solve in one compiled call,
+``kernels_loop`` keeps the Newton loop in Python as before that kernel existed) and the torch
+path, run side by side. Accuracy: the single
 instance's trajectory (every 10th step) against a reference run of the same scene, the torch
 path or the kernels (``--reference-backend``) converged tightly (10 Newton iterations, CG to
 1e-10) at the same dt; mean and max
@@ -48,6 +50,13 @@ DURATION = 2.0
 SINGLE_CLASS = 13  # p = 1, k = 5: membrane ~ camel-ponte-roma
 WIND_LEVEL = 2
 
+
+BENCH_BACKENDS = {
+    "kernels": ("kernels", True),
+    "kernels_loop": ("kernels", False),
+    "torch": ("torch", False),
+}
+"""``--backends`` names: (``sim.backend``, whole-step kernel)."""
 
 RECORD_EVERY = 10
 """Steps between the positions kept for the accuracy comparison."""
@@ -130,7 +139,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--backends",
         default="kernels,torch",
-        help="comma-separated: kernels, torch (first = headline)",
+        help="comma-separated: kernels, kernels_loop, torch (first = headline)",
     )
     parser.add_argument(
         "--reference-backend",
@@ -142,7 +151,9 @@ def main(argv: list[str] | None = None) -> dict:
     use_process_threads(args.threads or None)
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     for backend in backends:
-        resolve_backend(backend, "cuda" if torch.cuda.is_available() else "cpu")
+        if backend not in BENCH_BACKENDS:
+            parser.error(f"--backends: each must be one of {list(BENCH_BACKENDS)}, got {backend!r}")
+        resolve_backend(BENCH_BACKENDS[backend][0], "cuda" if torch.cuda.is_available() else "cpu")
     dtype = getattr(torch, args.dtype)
     verts = 32 * 32
     reference_settings = dataclasses.replace(REFERENCE, backend=args.reference_backend)
@@ -157,7 +168,10 @@ def main(argv: list[str] | None = None) -> dict:
         "runs": {},
     }
     for backend in backends:
-        settings = NewtonSettings(max_iters=1, cg_rtol=1e-2, cg_max_iters=200, backend=backend)
+        name, whole_step = BENCH_BACKENDS[backend]
+        settings = NewtonSettings(
+            max_iters=1, cg_rtol=1e-2, cg_max_iters=200, backend=name, whole_step=whole_step
+        )
         single = [run_ours([SINGLE_CLASS], dtype, settings) for _ in range(args.repeats)]
         run = {
             "device": single[0]["device"],

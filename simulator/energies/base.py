@@ -70,6 +70,10 @@ def autograd_hessian_product(
 class Energy:
     """Base class of the conservative energy terms (potential energy [J])."""
 
+    linear = False
+    """Whether the energy is linear in the positions (constant gradient, no Hessian): such
+    terms fold into the per-vertex quadratic of a step (:mod:`simulator.kernels.step`)."""
+
     def energy(self, model: SimModel, pos: torch.Tensor) -> torch.Tensor:
         """Energy of each instance [J], shape (B,). Must be differentiable in ``pos``."""
         raise NotImplementedError

@@ -56,23 +56,33 @@ def _edge_samples(
     return bending[:, lo] * (1 - frac) + bending[:, lo + 1] * frac
 
 
+def _piece(k_j, m_j, lo, hi):
+    """Integral of ``kappa (k_j + m_j (kappa - lo))`` from ``lo`` to ``hi``."""
+
+    def antider(u):
+        return k_j * u * u / 2 + m_j * (u**3 / 3 - lo * u * u / 2)
+
+    return antider(hi) - antider(lo)
+
+
+def secant_knot_integrals(samples: torch.Tensor) -> torch.Tensor:
+    """Psi at the sample curvatures, shape (..., 5): the integrals of the whole segments.
+
+    They depend on the material only, so the compiled kernels take them once per rollout.
+    """
+    knots = samples.new_tensor(BEND_SAMPLE_CURVATURES)
+    slopes = (samples[..., 1:] - samples[..., :-1]) / _SPACING
+    pieces = _piece(samples[..., :-1], slopes, knots[:-1], knots[1:])
+    return torch.cat([torch.zeros_like(samples[..., :1]), torch.cumsum(pieces, dim=-1)], dim=-1)
+
+
 def _secant_integral(samples: torch.Tensor, kappa: torch.Tensor):
     """psi(kappa), k(kappa) and k'(kappa) for piecewise-linear secant stiffness samples."""
     knots = samples.new_tensor(BEND_SAMPLE_CURVATURES)
     slopes = (samples[..., 1:] - samples[..., :-1]) / _SPACING  # (B, E, 4)
     k_left = samples[..., :-1]
-    a, b = knots[:-1], knots[1:]
-
-    def piece(k_j, m_j, lo, hi):
-        def antider(u):
-            return k_j * u * u / 2 + m_j * (u**3 / 3 - lo * u * u / 2)
-
-        return antider(hi) - antider(lo)
-
-    cumulative = torch.cat(
-        [torch.zeros_like(samples[..., :1]), torch.cumsum(piece(k_left, slopes, a, b), dim=-1)],
-        dim=-1,
-    )  # (B, E, 5) psi at knots
+    piece = _piece
+    cumulative = secant_knot_integrals(samples)  # (B, E, 5) psi at knots
     last = len(BEND_SAMPLE_CURVATURES) - 1
     inside = kappa < knots[-1]
     seg = (kappa.detach() / _SPACING).floor().clamp(0, last - 1).long()

@@ -15,6 +15,8 @@ __all__ = ["EnergyGravity"]
 class EnergyGravity(Energy):
     """``E = -sum_i m_i g . x_i`` with the model's lumped masses."""
 
+    linear = True
+
     acceleration: torch.Tensor
     """Gravitational acceleration [m/s²], shape (3,)."""
 

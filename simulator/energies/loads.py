@@ -15,6 +15,8 @@ __all__ = ["EnergyNodalForce", "surface_traction_forces"]
 class EnergyNodalForce(Energy):
     """``E = -sum_i f_i . x_i`` for fixed (dead) nodal forces, e.g. contact tractions."""
 
+    linear = True
+
     force: torch.Tensor
     """Nodal forces [N], shape (B, V, 3) or (1, V, 3) shared by the batch."""
 

@@ -73,6 +73,10 @@ def solve_static(
         model, energies, (), state.pos, state.pos, None, regularization=regularization, shell=shell
     )
     x, stats = newton_minimize(
-        objective, with_pins(model, state.pos, control), model.free_mask(), settings
+        objective,
+        with_pins(model, state.pos, control),
+        model.free_mask(),
+        settings,
+        aggregates=model.aggregates,
     )
     return dataclasses.replace(state, pos=x, vel=torch.zeros_like(x), acc=None), stats

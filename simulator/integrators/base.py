@@ -120,6 +120,47 @@ class IncrementalPotential:
             grad = grad - f.force(vel)
         return grad
 
+    def vertex_quadratic(self, x0):
+        """``(Q (B, V, 3, 3), z (B, V, 3), g (B, V, 3), const (B,))`` of all but the shell.
+
+        When the other terms are inertia, linear energies (gravity, dead loads) and forces with
+        per-vertex damping only, they add up to ``1/2 y^T Q y - g^T y + const`` with
+        ``y = x - z`` and 3x3 blocks on the diagonal, and the whole Newton solve can run in one
+        compiled call (:mod:`simulator.kernels.step`). The centre ``z`` is the inertial
+        prediction, so the values stay small and the line search compares them without
+        cancellation. ``None`` for static solves, without a compiled shell, and with any other
+        term (contact, self-collision, element-coupled damping). ``x0`` is unused by
+        the quadratic terms but evaluates the linear energies.
+        """
+        if self.dt is None or self.shell is None:
+            return None
+        if not all(e.linear for e in self.energies):
+            return None
+        if any(f.damping_blocks for f in self.step_forces):
+            return None
+        batch, verts = x0.shape[:2]
+        h = self.dt
+        centre = self.x_pred.expand(batch, verts, 3)
+        eye = torch.eye(3, dtype=x0.dtype, device=x0.device)
+        # The same sums, in the same order, as hessian()'s diagonal.
+        quad = (self._mass() / (h * h))[..., None] * eye
+        quad = quad.expand(batch, verts, 3, 3)
+        force = torch.zeros_like(centre)
+        const = centre.new_zeros(batch)
+        for e in self.energies:
+            grad = e.gradient(self.model, x0).expand(batch, verts, 3)
+            force = force - grad
+            const = const + e.energy(self.model, x0) + (grad * (centre - x0)).sum(dim=(1, 2))
+        hv = self._velocity_dt()
+        inv_h = 1.0 / hv
+        vel = (centre - self.x_start) / hv
+        for f in self.step_forces:
+            if f.damping_vertex is not None:
+                quad = quad + inv_h * f.damping_vertex
+            force = force + f.force(vel)
+            const = const + hv * f.power_potential(vel)
+        return quad, centre, force, const
+
     def hessian(self, x):
         """``(matvec, diag_blocks (B, V, 3, 3), block_sparse | None)`` of the SPD approximation."""
         batch, verts = x.shape[:2]

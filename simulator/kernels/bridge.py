@@ -14,12 +14,18 @@ import numba
 import numpy as np
 import torch
 
-from ..energies.bending import BEND_SAMPLE_CURVATURES, BEND_SCALE, EnergyBendingDihedral
+from ..energies.bending import (
+    BEND_SAMPLE_CURVATURES,
+    BEND_SCALE,
+    EnergyBendingDihedral,
+    secant_knot_integrals,
+)
 from ..energies.membrane import STRETCH_SAMPLE_STRAIN, EnergyMembraneWang, _fibre_vectors
 from .pcg import coarse_envelope, coarse_factor, coarse_matrix, pcg_two_level
 from .shell import shell_assemble, shell_energy
+from .step import newton_whole
 
-__all__ = ["ShellKernel", "solve_two_level", "split_shell"]
+__all__ = ["ShellKernel", "minimize_whole", "solve_two_level", "split_shell"]
 
 
 def _match_threads() -> None:
@@ -52,7 +58,8 @@ class ShellKernel:
     slots: tuple
     """ELL slots of the triangle (F, 3, 3) and hinge (E, 4, 4) blocks."""
     params: tuple
-    """row0 (B, 4), fibres (B, 8), edge samples (B, E, 5), all float64."""
+    """row0 (B, 4), fibres (B, 8), edge samples (B, E, 5) and their knot integrals (B, E, 5),
+    all float64."""
     dtype: torch.dtype
     _last: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
 
@@ -75,15 +82,21 @@ class ShellKernel:
             _np(model.pattern.slot_map(mesh.tri_indices)),
             _np(model.pattern.slot_map(mesh.edge_indices)),
         )
-        params = (_np(membrane.row0), _np(membrane.fibres), _np(bending.edge_stiffness))
+        samples = bending.edge_stiffness
+        params = (
+            _np(membrane.row0),
+            _np(membrane.fibres),
+            _np(samples),
+            _np(secant_knot_integrals(samples.double())),
+        )
         return ShellKernel(geometry, slots, params, model.vert_mass.dtype)
 
     def _args(self):
         tri, rest_inv, tri_area, fvec, hinges, rest_angle, scale, area, knots = self.geometry
-        row0, fibres, samples = self.params
+        row0, fibres, samples, cumulative = self.params
         membrane = (tri, rest_inv, tri_area)
         return membrane, (row0, fibres, fvec, STRETCH_SAMPLE_STRAIN), (
-            hinges, rest_angle, scale, area, samples, knots, BEND_SCALE,
+            hinges, rest_angle, scale, area, samples, cumulative, knots, BEND_SCALE,
         )  # fmt: skip
 
     def value(self, x: torch.Tensor) -> torch.Tensor:
@@ -198,3 +211,56 @@ def solve_two_level(
         float(rtol), int(max_iters),
     )  # fmt: skip
     return torch.from_numpy(x).to(rhs), torch.from_numpy(iters)
+
+
+def _solve_arrays(pattern, aggregates: torch.Tensor) -> tuple:
+    """``(cols, diag_slots, agg, envelope, A)`` of a pattern and aggregation, cached on it."""
+    key = ("kernel_solve", aggregates.data_ptr(), tuple(aggregates.shape))
+    hit = pattern._slot_cache.get(key)
+    if hit is not None and hit[0] is aggregates:
+        return hit[1]
+    cols = _np(pattern.cols)
+    diag_slots = np.arange(cols.shape[0]) * cols.shape[1] + np.argmax(
+        cols == np.arange(cols.shape[0])[:, None], axis=1
+    )
+    agg = _np(aggregates)
+    n_agg = int(agg.max()) + 1
+    out = (cols, diag_slots, agg, coarse_envelope(cols, agg, n_agg), n_agg)
+    pattern._slot_cache[key] = (aggregates, out)
+    return out
+
+
+def minimize_whole(shell: ShellKernel, quadratic: tuple, x0: torch.Tensor, free: torch.Tensor,
+                   settings, aggregates: torch.Tensor, pattern):  # fmt: skip
+    """Whole Newton solve of ``shell(x) + 1/2 y^T Q y - g^T y + const`` in one kernel call.
+
+    Args:
+        shell: the membrane + bending kernel.
+        quadratic: ``(Q (B, V, 3, 3), z (B, V, 3), g (B, V, 3), const (B,))`` of the other
+            terms (:meth:`simulator.integrators.base.IncrementalPotential.vertex_quadratic`).
+        x0: start (B, V, 3), pinned vertices at their values.
+        free: 1 for free, 0 for pinned, (V, 1) or (B, V, 1).
+        settings: :class:`simulator.solvers.NewtonSettings`.
+        aggregates: coarse aggregate per vertex (V,).
+        pattern: the model's :class:`simulator.solvers.block_sparse.BlockPattern`.
+
+    Returns:
+        ``(x (B, V, 3), (Newton iterations, CG iterations, last max update))`` as tensors.
+    """
+    batch, verts = x0.shape[:2]
+    free_b = free.expand(batch, verts, 1) if free.dim() == 2 else free
+    quad, centre, force, const = quadratic
+    (tri, rest_inv, tri_area), mem, bend = shell._args()
+    tri_slots, hinge_slots = shell.slots
+    _match_threads()
+    shell_args = (tri, rest_inv, tri_area, tri_slots, *mem, *bend, hinge_slots)
+    newton = (
+        int(settings.max_iters), float(settings.tol_dx), float(settings.cg_rtol),
+        int(settings.cg_max_iters), bool(settings.line_search), int(settings.max_halvings),
+    )  # fmt: skip
+    x, newton_iters, cg_iters, update = newton_whole(
+        _np(x0), _np(quad), _np(centre), _np(force), _np(const), _np(free_b[..., 0]),
+        shell_args, _solve_arrays(pattern, aggregates), newton,
+    )  # fmt: skip
+    as_torch = torch.from_numpy
+    return as_torch(x).to(x0), (as_torch(newton_iters), as_torch(cg_iters), as_torch(update).to(x0))

@@ -13,7 +13,15 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["coarse_envelope", "coarse_factor", "coarse_matrix", "pcg_two_level"]
+__all__ = [
+    "coarse_envelope",
+    "coarse_factor",
+    "coarse_factor_one",
+    "coarse_matrix",
+    "coarse_matrix_one",
+    "pcg_one",
+    "pcg_two_level",
+]
 
 
 @njit(cache=True, error_model="numpy")
@@ -36,6 +44,24 @@ def coarse_envelope(cols, agg, n_agg):
     return first
 
 
+@njit(cache=True, error_model="numpy")
+def coarse_matrix_one(values, cols, agg, free, out):
+    """Add one instance's ``P^T A P`` over free vertices into ``out`` (3A, 3A)."""
+    verts, width = values.shape[0], values.shape[1]
+    for i in range(verts):
+        if free[i] == 0.0:
+            continue
+        ai = 3 * agg[i]
+        for k in range(width):
+            j = cols[i, k]
+            if free[j] == 0.0:
+                continue
+            aj = 3 * agg[j]
+            for d in range(3):
+                for e in range(3):
+                    out[ai + d, aj + e] += values[i, k, d, e]
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def coarse_matrix(values, cols, agg, free, n_agg):
     """``Ac = P^T A P`` over free vertices, dofs ordered (aggregate, axis), (B, 3A, 3A).
@@ -47,21 +73,10 @@ def coarse_matrix(values, cols, agg, free, n_agg):
         free: 1 for free, 0 for pinned, (B, V).
         n_agg: A.
     """
-    batch, verts, width = values.shape[0], values.shape[1], values.shape[2]
+    batch = values.shape[0]
     out = np.zeros((batch, 3 * n_agg, 3 * n_agg))
     for b in prange(batch):
-        for i in range(verts):
-            if free[b, i] == 0.0:
-                continue
-            ai = 3 * agg[i]
-            for k in range(width):
-                j = cols[i, k]
-                if free[b, j] == 0.0:
-                    continue
-                aj = 3 * agg[j]
-                for d in range(3):
-                    for e in range(3):
-                        out[b, ai + d, aj + e] += values[b, i, k, d, e]
+        coarse_matrix_one(values[b], cols, agg, free[b], out[b])
     return out
 
 
@@ -93,31 +108,36 @@ def _cholesky(mat, first, out) -> bool:
     return True
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def coarse_factor(coarse, first, agg, free):
-    """Lower Cholesky factors of the coarse matrices (B, 3A, 3A), made safely SPD first.
+@njit(cache=True, error_model="numpy")
+def coarse_factor_one(coarse, first, agg, free, out):
+    """Lower Cholesky factor of one coarse matrix (3A, 3A) into ``out``, made safely SPD first.
 
     As :func:`simulator.solvers.coarse._spd_inverse`: aggregates without a free vertex get an
-    identity-scaled block, every diagonal a relative shift of 16 ulps, and an instance whose
-    factorisation still fails a 1e-6 relative shift.
+    identity-scaled block, every diagonal a relative shift of 16 ulps, and a matrix whose
+    factorisation still fails a 1e-6 relative shift. ``coarse`` is overwritten.
     """
-    batch, n = coarse.shape[0], coarse.shape[1]
-    out = np.empty_like(coarse)
+    n = coarse.shape[0]
     eps = np.finfo(np.float64).eps
-    for b in prange(batch):
-        count = np.zeros(n // 3)
-        for i in range(agg.shape[0]):
-            count[agg[i]] += free[b, i]
-        scale = 1e-30
+    count = np.zeros(n // 3)
+    for i in range(agg.shape[0]):
+        count[agg[i]] += free[i]
+    scale = 1e-30
+    for p in range(n):
+        scale = max(scale, abs(coarse[p, p]))
+    for p in range(n):
+        coarse[p, p] += ((1.0 if count[p // 3] <= 0 else 0.0) + 16 * eps) * scale
+    if not _cholesky(coarse, first, out):
         for p in range(n):
-            scale = max(scale, abs(coarse[b, p, p]))
-        mat = coarse[b].copy()
-        for p in range(n):
-            mat[p, p] += ((1.0 if count[p // 3] <= 0 else 0.0) + 16 * eps) * scale
-        if not _cholesky(mat, first, out[b]):
-            for p in range(n):
-                mat[p, p] += 1e-6 * scale
-            _cholesky(mat, first, out[b])
+            coarse[p, p] += 1e-6 * scale
+        _cholesky(coarse, first, out)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def coarse_factor(coarse, first, agg, free):
+    """Lower Cholesky factors of the coarse matrices (B, 3A, 3A) (:func:`coarse_factor_one`)."""
+    out = np.empty_like(coarse)
+    for b in prange(coarse.shape[0]):
+        coarse_factor_one(coarse[b].copy(), first, agg, free[b], out[b])
     return out
 
 
@@ -197,9 +217,60 @@ def _matvec(values, cols, free, p, out):
         out[i, 0], out[i, 1], out[i, 2] = s0, s1, s2
 
 
+@njit(cache=True, error_model="numpy")
+def pcg_one(values, cols, diag, agg, factor, first, free, rhs, x, rtol, max_iters):
+    """Solve one instance's ``A x = rhs`` with additive two-level PCG, from ``x = 0``.
+
+    Arguments as :func:`pcg_two_level`, for one instance; ``x`` (V, 3) is overwritten.
+    Returns ``(iterations, relative residual)``.
+    """
+    verts = rhs.shape[0]
+    tiny = np.finfo(np.float64).tiny
+    n_coarse = factor.shape[0]
+    x[:] = 0.0
+    diag_inv = np.empty((verts, 3, 3))
+    for i in range(verts):
+        _invert3(diag[i], diag_inv[i])
+    r = rhs.copy()
+    z = np.empty((verts, 3))
+    ap = np.empty((verts, 3))
+    rc = np.empty(n_coarse)
+    ec = np.empty(n_coarse)
+    rhs_norm = math.sqrt(np.sum(r * r))
+    if not rhs_norm > tiny:
+        return 0, 0.0
+    _precondition(r, z, rc, ec, diag_inv, agg, factor, first, free)
+    p = z.copy()
+    rz = np.sum(r * z)
+    res = 1.0
+    iters = 0
+    for _ in range(max_iters):
+        _matvec(values, cols, free, p, ap)
+        pap = np.sum(p * ap)
+        alpha = rz / pap if pap > tiny else 0.0
+        rr = 0.0
+        for i in range(verts):
+            for d in range(3):
+                x[i, d] += alpha * p[i, d]
+                r[i, d] -= alpha * ap[i, d]
+                rr += r[i, d] * r[i, d]
+        iters += 1
+        res = math.sqrt(rr) / rhs_norm
+        if res <= rtol:
+            break
+        _precondition(r, z, rc, ec, diag_inv, agg, factor, first, free)
+        rz_new = np.sum(r * z)
+        beta = rz_new / rz if rz > tiny else 0.0
+        for i in range(verts):
+            for d in range(3):
+                p[i, d] = z[i, d] + beta * p[i, d]
+        rz = rz_new
+    return iters, res
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def pcg_two_level(values, cols, diag, agg, factor, first, free, rhs, active, rtol, max_iters):
-    """Solve ``A x = rhs`` per instance with additive two-level PCG.
+    """Solve ``A x = rhs`` per instance with additive two-level PCG (:func:`pcg_one`).
 
     Args:
         values: ELL blocks (B, V, K, 3, 3).
@@ -217,50 +288,14 @@ def pcg_two_level(values, cols, diag, agg, factor, first, free, rhs, active, rto
     Returns:
         ``(x (B, V, 3), iterations (B,) int64, relative residual (B,))``.
     """
-    batch, verts = rhs.shape[0], rhs.shape[1]
+    batch = rhs.shape[0]
     x = np.zeros_like(rhs)
     iters = np.zeros(batch, dtype=np.int64)
     res = np.zeros(batch)
-    tiny = np.finfo(np.float64).tiny
-    n_coarse = factor.shape[1]
     for b in prange(batch):
-        if not active[b]:
-            continue
-        diag_inv = np.empty((verts, 3, 3))
-        for i in range(verts):
-            _invert3(diag[b, i], diag_inv[i])
-        r = rhs[b].copy()
-        z = np.empty((verts, 3))
-        ap = np.empty((verts, 3))
-        rc = np.empty(n_coarse)
-        ec = np.empty(n_coarse)
-        rhs_norm = math.sqrt(np.sum(r * r))
-        if not rhs_norm > tiny:
-            continue
-        _precondition(r, z, rc, ec, diag_inv, agg, factor[b], first, free[b])
-        p = z.copy()
-        rz = np.sum(r * z)
-        res[b] = 1.0
-        xb = x[b]
-        for _ in range(max_iters):
-            _matvec(values[b], cols, free[b], p, ap)
-            pap = np.sum(p * ap)
-            alpha = rz / pap if pap > tiny else 0.0
-            rr = 0.0
-            for i in range(verts):
-                for d in range(3):
-                    xb[i, d] += alpha * p[i, d]
-                    r[i, d] -= alpha * ap[i, d]
-                    rr += r[i, d] * r[i, d]
-            iters[b] += 1
-            res[b] = math.sqrt(rr) / rhs_norm
-            if res[b] <= rtol:
-                break
-            _precondition(r, z, rc, ec, diag_inv, agg, factor[b], first, free[b])
-            rz_new = np.sum(r * z)
-            beta = rz_new / rz if rz > tiny else 0.0
-            for i in range(verts):
-                for d in range(3):
-                    p[i, d] = z[i, d] + beta * p[i, d]
-            rz = rz_new
+        if active[b]:
+            iters[b], res[b] = pcg_one(
+                values[b], cols, diag[b], agg, factor[b], first, free[b], rhs[b], x[b], rtol,
+                max_iters,
+            )  # fmt: skip
     return x, iters, res

@@ -33,7 +33,19 @@ def _phi(eps, e_s, order):
     return t * t * (3.0 - 2.0 * t)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, inline="always")
+def _phi_all(eps, e_s):
+    """Phi, Phi' and Phi'' of one fibre strain together (``_phi`` of orders 0, 1, 2)."""
+    t = min(max(eps / e_s, 0.0), 1.0)
+    over = max(eps - e_s, 0.0)
+    t2 = t * t
+    t3 = t2 * t
+    t4 = t3 * t
+    phi = e_s * e_s * (t4 / 4.0 - t4 * t / 10.0) + 0.5 * e_s * over + 0.5 * over * over
+    return phi, e_s * (t3 - t4 / 2.0) + over, t2 * (3.0 - 2.0 * t)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def _membrane(x, tri, rest_inv, area, row0, fibres, fvec, e_s, want, grad, hess, work):
     """Energy of one triangle [J]; with ``want`` also its gradient (3, 3) and blocks (3, 3, 3, 3).
 
@@ -63,10 +75,15 @@ def _membrane(x, tri, rest_inv, area, row0, fibres, fvec, e_s, want, grad, hess,
         cmat[0, 0], cmat[0, 1], cmat[1, 0], cmat[1, 1], cmat[2, 2] = k0, k1, k1, k2, k3
     for n in range(fvec.shape[0]):
         eps = fvec[n, 0] * g0 + fvec[n, 1] * g1 + fvec[n, 2] * g2
-        w += fibres[n] * _phi(eps, e_s, 0)
-        if want:
-            p1 = fibres[n] * _phi(eps, e_s, 1)
-            p2 = fibres[n] * _phi(eps, e_s, 2)
+        if not eps > 0.0 or fibres[n] == 0.0:
+            continue  # a fibre in compression (or absent) adds exactly nothing
+        if not want:
+            w += fibres[n] * _phi(eps, e_s, 0)
+        else:
+            phi, phi1, phi2 = _phi_all(eps, e_s)
+            w += fibres[n] * phi
+            p1 = fibres[n] * phi1
+            p2 = fibres[n] * phi2
             for v in range(3):
                 s[v] += p1 * fvec[n, v]
                 for u in range(3):
@@ -111,7 +128,7 @@ def _membrane(x, tri, rest_inv, area, row0, fibres, fvec, e_s, want, grad, hess,
                     + cmat[v, 2] * jac[j, 2, d]
                 )
     for i in range(3):
-        for j in range(3):
+        for j in range(i, 3):  # the blocks below the diagonal are the transposes
             geo = 0.0
             for a in range(2):
                 for b in range(2):
@@ -124,6 +141,10 @@ def _membrane(x, tri, rest_inv, area, row0, fibres, fvec, e_s, want, grad, hess,
                         + jac[i, 2, d] * cj[j, 2, e]
                     )
                 hess[i, j, d, d] += geo
+            if j != i:
+                for d in range(3):
+                    for e in range(3):
+                        hess[j, i, e, d] = hess[i, j, d, e]
     return area * w
 
 
@@ -152,28 +173,22 @@ def _along(x, p, q, h0, h1, h2):
     return (x[p, 0] - x[q, 0]) * h0 + (x[p, 1] - x[q, 1]) * h1 + (x[p, 2] - x[q, 2]) * h2
 
 
-@njit(cache=True, error_model="numpy")
-def _secant(samples, knots, kappa):
+@njit(cache=True, inline="always")
+def _secant(samples, cumulative, knots, kappa):
     """psi(kappa), k(kappa), k'(kappa) of piecewise-linear secant samples.
 
-    As ``bending._secant_integral``.
+    As ``bending._secant_integral``; ``cumulative`` holds psi at the knots
+    (``bending.secant_knot_integrals``).
     """
     last = knots.shape[0] - 1
     spacing = knots[1] - knots[0]
-    psi_lo = 0.0
     seg = min(max(math.floor(kappa / spacing), 0), last - 1)
-    for j in range(seg):
-        m = (samples[j + 1] - samples[j]) / spacing
-        lo, hi = knots[j], knots[j + 1]
-        psi_lo += (samples[j] * hi * hi / 2 + m * (hi**3 / 3 - lo * hi * hi / 2)) - (
-            samples[j] * lo * lo / 2 + m * (lo**3 / 3 - lo * lo * lo / 2)
-        )
     k_j = samples[seg]
     m_seg = (samples[seg + 1] - samples[seg]) / spacing
     lo = knots[seg]
     u = min(kappa, knots[last])
     psi = (
-        psi_lo
+        cumulative[seg]
         + (k_j * u * u / 2 + m_seg * (u**3 / 3 - lo * u * u / 2))
         - (k_j * lo * lo / 2 + m_seg * (lo**3 / 3 - lo * lo * lo / 2))
     )
@@ -182,8 +197,8 @@ def _secant(samples, knots, kappa):
     return psi + samples[last] * (kappa * kappa - knots[last] ** 2) / 2, samples[last], 0.0
 
 
-@njit(cache=True, error_model="numpy")
-def _bending(x, hinge, rest_angle, scale, area, samples, knots, bend_scale, want, grad):
+@njit(cache=True, inline="always", error_model="numpy")
+def _bending(x, hinge, rest_angle, scale, area, samples, cumulative, knots, bend_scale, want, grad):
     """Energy of one hinge [J].
 
     With ``want`` it also writes dE/dx into ``grad[0:4]`` and d theta/dx scaled by
@@ -207,7 +222,7 @@ def _bending(x, hinge, rest_angle, scale, area, samples, knots, bend_scale, want
     cos = (n10 * n20 + n11 * n21 + n12 * n22) / norm
     delta = math.atan2(sin, cos) - rest_angle
     kappa = abs(delta) * scale
-    psi, k_val, k_slope = _secant(samples, knots, kappa)
+    psi, k_val, k_slope = _secant(samples, cumulative, knots, kappa)
     if not want:
         return bend_scale * area * psi
     d_e = bend_scale * area * scale * scale * k_val * delta
@@ -239,7 +254,7 @@ def _bending(x, hinge, rest_angle, scale, area, samples, knots, bend_scale, want
 @njit(cache=True, error_model="numpy")
 def _shell_instance(
     x, tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
-    hinges, rest_angle, edge_scale, edge_area, samples, knots, bend_scale, hinge_slots,
+    hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale, hinge_slots,
     want, grad, values,
 ):  # fmt: skip
     """Energy of one instance [J]; with ``want`` also adds its gradient and Hessian blocks.
@@ -268,26 +283,32 @@ def _shell_instance(
                         values[slot, d, e] += h3[i, j, d, e]
     for n in range(hinges.shape[0]):
         total += _bending(
-            x, hinges[n], rest_angle[n], edge_scale[n], edge_area[n], samples[n], knots,
-            bend_scale, want, g4,
+            x, hinges[n], rest_angle[n], edge_scale[n], edge_area[n], samples[n], cumulative[n],
+            knots, bend_scale, want, g4,
         )  # fmt: skip
         if not want:
             continue
         for i in range(4):
             for d in range(3):
                 grad[hinges[n, i], d] += g4[i, d]
-            for j in range(4):
+            if g4[4 + i, 0] == 0.0 and g4[4 + i, 1] == 0.0 and g4[4 + i, 2] == 0.0:
+                continue  # a zero row (E'' <= 0 here) adds nothing, nor does its mirror
+            for j in range(i, 4):  # g_i g_j^T and its transpose g_j g_i^T together
                 slot = hinge_slots[n, i, j]
+                mirror = hinge_slots[n, j, i]
                 for d in range(3):
                     for e in range(3):
-                        values[slot, d, e] += g4[4 + i, d] * g4[4 + j, e]
+                        prod = g4[4 + i, d] * g4[4 + j, e]
+                        values[slot, d, e] += prod
+                        if j != i:
+                            values[mirror, e, d] += prod
     return total
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def shell_assemble(
     pos, tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
-    hinges, rest_angle, edge_scale, edge_area, samples, knots, bend_scale, hinge_slots,
+    hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale, hinge_slots,
     energy, grad, values,
 ):  # fmt: skip
     """Add energy (B,), gradient (B, V, 3) and PSD Hessian blocks into ELL ``values``.
@@ -307,6 +328,8 @@ def shell_assemble(
         edge_scale: ``l / A`` (E,) [1/m].
         edge_area: ``A`` (E,) [m²].
         samples: secant bending samples (B, E, 5) [N·m].
+        cumulative: psi at their curvatures (B, E, 5) [N/m]
+            (``bending.secant_knot_integrals``).
         knots: their curvatures (5,) [1/m].
         bend_scale: the bending discrete-to-continuum factor.
         hinge_slots: ELL slots of the hinge blocks, (E, 4, 4).
@@ -317,7 +340,7 @@ def shell_assemble(
     for b in prange(pos.shape[0]):
         energy[b] += _shell_instance(
             pos[b], tri, rest_inv, tri_area, tri_slots, row0[b], fibres[b], fvec, e_s,
-            hinges, rest_angle, edge_scale, edge_area, samples[b], knots, bend_scale,
+            hinges, rest_angle, edge_scale, edge_area, samples[b], cumulative[b], knots, bend_scale,
             hinge_slots, True, grad[b], values[b],
         )  # fmt: skip
 
@@ -325,7 +348,7 @@ def shell_assemble(
 @njit(cache=True, parallel=True, error_model="numpy")
 def shell_energy(
     pos, tri, rest_inv, tri_area, row0, fibres, fvec, e_s,
-    hinges, rest_angle, edge_scale, edge_area, samples, knots, bend_scale,
+    hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale,
 ):  # fmt: skip
     """Membrane + bending energy [J] per instance, (B,); arguments as :func:`shell_assemble`."""
     batch = pos.shape[0]
@@ -337,7 +360,7 @@ def shell_energy(
         unused_values = np.empty((1, 3, 3))
         out[b] = _shell_instance(
             pos[b], tri, rest_inv, tri_area, no_slots3, row0[b], fibres[b], fvec, e_s,
-            hinges, rest_angle, edge_scale, edge_area, samples[b], knots, bend_scale,
+            hinges, rest_angle, edge_scale, edge_area, samples[b], cumulative[b], knots, bend_scale,
             no_slots4, False, unused_grad, unused_values,
         )  # fmt: skip
     return out

@@ -55,6 +55,11 @@ class NewtonSettings:
     (:mod:`simulator.kernels`) for the cloth shell energies and the two-level PCG, each
     instance iterating on its own. Resolve ``auto`` with
     :func:`simulator.kernels.resolve_backend` first."""
+    whole_step: bool = True
+    """On ``kernels`` with the two-level PCG: run the whole Newton loop in one compiled call
+    when every term besides the shell is a per-vertex quadratic (the wind scene without
+    contact; :meth:`IncrementalPotential.vertex_quadratic`). Same arithmetic; ``False`` keeps
+    the loop here (the reference of the tests)."""
 
     def __post_init__(self):
         for name in ("max_iters", "cg_max_iters", "check_every"):
@@ -118,6 +123,14 @@ def newton_minimize(
         settings: tolerances.
         aggregates: coarse aggregate per vertex (V,), enabling the two-level preconditioner.
     """
+    whole = _whole_step_parts(objective, x0, settings, aggregates)
+    if whole is not None:
+        from ..kernels.bridge import minimize_whole
+
+        x, (newton_iters, cg_total, max_update) = minimize_whole(
+            objective.shell, whole, x0, free, settings, aggregates, objective.model.pattern
+        )
+        return x, StepStats(newton_iters, cg_total, max_update, max_update <= settings.tol_dx)
     batch = x0.shape[0]
     device = x0.device
     x = x0
@@ -199,6 +212,21 @@ def newton_minimize(
             break
     stats = StepStats(newton_iters, cg_total, max_update, max_update <= settings.tol_dx)
     return x, stats
+
+
+def _whole_step_parts(objective, x0, settings: NewtonSettings, aggregates) -> tuple | None:
+    """The per-vertex quadratic of ``objective`` when the whole solve can run compiled."""
+    if not (
+        settings.backend == "kernels"
+        and settings.whole_step
+        and settings.linear_solver == "pcg"
+        and settings.preconditioner == "two_level"
+        and aggregates is not None
+        and x0.device.type == "cpu"
+    ):
+        return None
+    split = getattr(objective, "vertex_quadratic", None)
+    return None if split is None else split(x0)
 
 
 def _whole_in_pattern(matvec, sparse) -> bool:

@@ -154,15 +154,15 @@ def test_envelope_cholesky_factors_the_coarse_matrix():
         assert float(np.abs(factor[b][left]).max()) == 0.0
 
 
-def _rollout(scene, classes, backend, steps=50, dt=0.005, effects=ALL_ON):
+def _rollout(scene, classes, backend, steps=50, dt=0.005, effects=ALL_ON, **settings_kw):
     model, state, driver = scene.build(
         ClothMaterial.from_classes(classes),
         seeds=list(range(len(classes))),
         wind_levels=[2] * len(classes),
         effects=effects,
     )
-    settings = NewtonSettings(max_iters=3, cg_rtol=1e-10, cg_max_iters=1000, backend=backend)
-    integrator = IntegratorBackwardEuler(settings)
+    kw = {"max_iters": 3, "cg_rtol": 1e-10, "cg_max_iters": 1000, **settings_kw}
+    integrator = IntegratorBackwardEuler(NewtonSettings(backend=backend, **kw))
     cg = []
     for k in range(1, steps + 1):
         state, stats = integrator.step(model, state, driver.control(k * dt, state.pos), dt)
@@ -185,6 +185,71 @@ def test_rollout_with_every_effect_matches_torch(scene):
     assert float((got - ref).abs().max()) < 1e-9
     # Solved to 1e-10, round-off decides the last iteration now and then (the PCG test above
     # checks equal counts on one system).
+    assert abs(int(got_cg.sum()) - int(ref_cg.sum())) <= 0.02 * int(ref_cg.sum())
+
+
+WHOLE_STEP_EFFECTS = PhysicsEffects(aero_lift=True, air_damping=True, gusty_wind=True)
+"""Every switch whose terms fold into the per-vertex quadratic of the whole-step kernel."""
+
+
+def test_vertex_quadratic_equals_the_other_terms():
+    model, state, driver = _wind(effects=WHOLE_STEP_EFFECTS)
+    noise = torch.randn(state.pos.shape, generator=torch.Generator().manual_seed(3))
+    state = dataclasses.replace(state, vel=0.3 * noise.to(state.pos))
+    control = driver.control(0.3, state.pos)
+    energies, forces = begin_step(model, state, control, 0.005)
+    x_pred = state.pos + 0.005 * state.vel
+    shell, rest = split_shell(model, energies)
+    with_shell = IncrementalPotential(model, rest, forces, state.pos, x_pred, 0.005, shell=shell)
+    others = IncrementalPotential(model, rest, forces, state.pos, x_pred, 0.005)
+    quad, centre, force, const = with_shell.vertex_quadratic(state.pos)
+    for x in (x_pred, _folded(state, seed=4)):
+        y = x - centre
+        qy = (quad @ y[..., None])[..., 0]
+        value = 0.5 * (y * qy).sum(dim=(1, 2)) - (force * y).sum(dim=(1, 2)) + const
+        assert _rel(value, others.value(x)) < 1e-12
+        assert _rel(qy - force, others.gradient(x)) < 1e-12
+    _, diag, _ = others.hessian(x_pred)
+    assert _rel(quad, diag) < 1e-15
+    # Terms outside the quadratic (self-collision, internal damping) and static solves: none.
+    model, state, driver = _wind(effects=ALL_ON)
+    _, fast = _objectives(model, state, driver.control(0.005, state.pos), state.pos)
+    assert fast.vertex_quadratic(state.pos) is None
+    static = dataclasses.replace(with_shell, dt=None)
+    assert static.vertex_quadratic(state.pos) is None
+
+
+@pytest.fixture
+def count_whole_steps(monkeypatch):
+    """Counts the calls of the whole-step kernel."""
+    import simulator.kernels.bridge as bridge
+
+    calls = []
+    original = bridge.minimize_whole
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(bridge, "minimize_whole", counted)
+    return calls
+
+
+def test_whole_step_kernel_matches_the_stepwise_loop_and_torch(count_whole_steps):
+    scene = ScenarioWind(resolution_level=2, settle_time=0.0, ramp_time=0.05)
+    classes, effects = [0, 13, 31, 53], WHOLE_STEP_EFFECTS
+    # Production settings: the same arithmetic as the Newton loop here, to round-off.
+    loose = {"max_iters": 2, "cg_rtol": 1e-2, "cg_max_iters": 200}
+    ref, ref_cg = _rollout(scene, classes, "kernels", effects=effects, whole_step=False, **loose)
+    assert not count_whole_steps
+    got, got_cg = _rollout(scene, classes, "kernels", effects=effects, **loose)
+    assert len(count_whole_steps) == 50
+    assert float((got - ref).abs().max()) < 1e-12
+    assert torch.equal(got_cg, ref_cg)
+    # Solved tightly, on the torch trajectory.
+    ref, ref_cg = _rollout(scene, classes, "torch", effects=effects)
+    got, got_cg = _rollout(scene, classes, "kernels", effects=effects)
+    assert float((got - ref).abs().max()) < 1e-9
     assert abs(int(got_cg.sum()) - int(ref_cg.sum())) <= 0.02 * int(ref_cg.sum())
 
 
