@@ -35,6 +35,7 @@ from .stats import (
     Gap,
     auc_score,
     bootstrap_draws,
+    classifier_divergence,
     compare,
     domain_scores,
     gap_closed,
@@ -46,7 +47,9 @@ from .stats import (
 
 __all__ = [
     "OPEN_SET_MIN_CLOSURE",
+    "SATURATED_AUC",
     "CandidateResult",
+    "ReferenceScores",
     "best_subset_values",
     "candidate_result",
     "fit_strength",
@@ -54,6 +57,7 @@ __all__ = [
     "localise",
     "probe_transfer",
     "rank_candidates",
+    "reference_scores",
     "rung_gaps",
     "scored_rungs",
     "shapley_values",
@@ -216,7 +220,8 @@ class CandidateResult:
     """Mean classifier closure (:attr:`closure_auc`) over the scored rungs, per strength."""
     closure_auc: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     """Scored rung -> fraction of the floor-corrected domain-classifier AUC closed, per
-    strength: (AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor AUC)."""
+    strength: (AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor AUC); on a saturated rung
+    (:data:`SATURATED_AUC`) the classifier divergence's (floor 0) instead."""
     fitted: float | None = None
     """Continuous strength fit (:func:`fit_strength`); ``None``: not fitted (switch, choice)."""
     fit_interval: tuple[float, float] | None = None
@@ -295,9 +300,61 @@ def _auc(scores: np.ndarray, n: int) -> float:
     return float(np.mean([auc_score(row, labels) for row in scores]))
 
 
-def reference_aucs(sim: LadderFeatures, real: LadderFeatures, rungs: list[str]) -> dict:
-    """AUC(S, R) per scored rung, measured exactly as every candidate's AUC (:func:`_oof`)."""
-    return {r: _auc(_oof(sim, sim, real, r), len(sim)) for r in rungs}
+def _divergence(scores: np.ndarray, n: int) -> float:
+    labels = np.r_[np.zeros(n), np.ones(scores.shape[1] - n)]
+    return float(np.mean([classifier_divergence(row, labels) for row in scores]))
+
+
+SATURATED_AUC = 0.99
+"""A scored rung whose AUC(S, R) reaches this is scored by the classifier divergence instead.
+
+With two strong effects in R, S is told apart from R perfectly, and so is S plus either
+effect alone: every candidate's AUC stays at 1 and every closure at 0 (round 2 of the blind
+validation, pair 8025: scene size + camera shake, no candidate and no coalition scored). The
+divergence (:func:`sim2real.stats.classifier_divergence`) still falls when one of the two
+effects is added."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceScores:
+    """The domain classifier on S vs R per scored rung, measured as every candidate's."""
+
+    auc: dict[str, float]
+    divergence: dict[str, float]
+    """Classifier divergence [nats] (log 2 minus the balanced held-out cross-entropy)."""
+
+    def saturated(self, rung: str) -> bool:
+        """Whether ``rung`` is scored by the divergence (:data:`SATURATED_AUC`)."""
+        return self.auc[rung] >= SATURATED_AUC
+
+    def closure(self, rung: str, scores: np.ndarray, n: int, gap: Gap) -> float:
+        """Fraction of the classifier gap that a candidate with out-of-fold ``scores`` closes.
+
+        The AUC above its within-domain floor; on a saturated rung the divergence above 0,
+        the value of sets the classifier cannot tell apart.
+        """
+        if self.saturated(rung):
+            return gap_closed(self.divergence[rung], _divergence(scores, n), 0.0)
+        return gap_closed(self.auc[rung], _auc(scores, n), _auc_floor(gap))
+
+    def to_json(self) -> dict:
+        """Plain JSON."""
+        return {
+            "auc": self.auc,
+            "divergence": self.divergence,
+            "saturated": [r for r in self.auc if self.saturated(r)],
+        }
+
+
+def reference_scores(
+    sim: LadderFeatures, real: LadderFeatures, rungs: list[str]
+) -> ReferenceScores:
+    """AUC and divergence of S vs R per scored rung, measured as every candidate's (``_oof``)."""
+    oof = {r: _oof(sim, sim, real, r) for r in rungs}
+    return ReferenceScores(
+        auc={r: _auc(scores, len(sim)) for r, scores in oof.items()},
+        divergence={r: _divergence(scores, len(sim)) for r, scores in oof.items()},
+    )
 
 
 def candidate_result(
@@ -309,7 +366,7 @@ def candidate_result(
     real: LadderFeatures,
     gaps: dict[str, Gap],
     rungs: list[str],
-    before: dict[str, float] | None = None,
+    before: ReferenceScores | None = None,
 ) -> CandidateResult:
     """Score the candidate's sets (one per strength) against R.
 
@@ -317,10 +374,11 @@ def candidate_result(
     closure, which makes the score. The kernel statistic spreads its power over every
     feature, while a domain classifier finds the few directions an effect moves, so it
     tells candidates apart where the MMD² barely sees the gap; a candidate that adds a
-    difference R does not have is caught by it too. ``before``: :func:`reference_aucs`
-    (computed here when not given).
+    difference R does not have is caught by it too. ``before``: :func:`reference_scores`
+    (computed here when not given); on saturated rungs the classifier closure is that of
+    the divergence (:data:`SATURATED_AUC`).
     """
-    before = before if before is not None else reference_aucs(sim, real, rungs)
+    before = before if before is not None else reference_scores(sim, real, rungs)
     mmd2 = {r: [] for r in gaps}
     closure = {r: [] for r in gaps}
     closure_auc = {r: [] for r in rungs}
@@ -334,9 +392,7 @@ def candidate_result(
         for rung in rungs:
             scores = _oof(sim, features, real, rung)
             oof[rung].append(scores)
-            closure_auc[rung].append(
-                gap_closed(before[rung], _auc(scores, len(features)), _auc_floor(gaps[rung]))
-            )
+            closure_auc[rung].append(before.closure(rung, scores, len(features), gaps[rung]))
     score = [
         float(np.mean([closure_auc[r][i] for r in rungs])) if rungs else 0.0
         for i in range(len(sets))
@@ -375,6 +431,7 @@ def fit_strength(
     log_scale: bool,
     n_boot: int,
     rng: np.random.Generator,
+    before: ReferenceScores | None = None,
 ) -> CandidateResult:
     """``result`` with a continuous strength fit and its group-bootstrap interval.
 
@@ -385,7 +442,9 @@ def fit_strength(
     simulations), each replicate re-scoring every strength's classifier AUC from its
     out-of-fold scores (classifiers held fixed) against the rung's fixed floor, widened to at
     least half the grid's local spacing on each side of the fit (the grid's resolution). A
-    flat curve gives a wide interval: the data cannot pin the strength down.
+    flat curve gives a wide interval: the data cannot pin the strength down. On a saturated
+    rung (``before``, :func:`reference_scores`, computed when not given) the replicates
+    re-score the classifier divergence instead of the AUC, as :func:`candidate_result` does.
     Switches, choices and candidates with one strength are returned unchanged.
     """
     strengths = result.strengths
@@ -401,11 +460,16 @@ def fit_strength(
     codes_y = np.unique(real.groups, return_inverse=True)[1].reshape(-1)
     draws_y = bootstrap_draws(int(codes_y.max()) + 1, n_boot, rng)
     draws_x = bootstrap_draws(len(groups_x), n_boot, rng) if shared else None
+    before = before if before is not None else reference_scores(sim, real, rungs)
     closed = np.zeros((len(rungs), len(sets), n_boot))
     for r, rung in enumerate(rungs):
         gap = gaps[rung]
-        floor = _auc_floor(gap)
-        span = max(gap.auc - floor, 1e-3)
+        saturated = before.saturated(rung)
+        reference, floor, measure = (
+            (before.divergence[rung], 0.0, classifier_divergence) if saturated
+            else (gap.auc, _auc_floor(gap), weighted_auc)
+        )  # fmt: skip
+        span = max(reference - floor, 1e-3)
         for i, features in enumerate(sets):
             codes_x = np.unique(features.groups, return_inverse=True)[1].reshape(-1)
             rows_x = (draws_x if draws_x is not None else
@@ -413,8 +477,8 @@ def fit_strength(
             weights = np.concatenate([rows_x, draws_y[codes_y]]).astype(np.float64)
             labels = np.r_[np.zeros(len(codes_x)), np.ones(len(codes_y))]
             scores = result.scores_oof[rung][i]
-            after = np.mean([weighted_auc(row, labels, weights) for row in scores], axis=0)
-            closed[r, i] = np.clip((gap.auc - after) / span, -1.0, 1.0)
+            after = np.mean([measure(row, labels, weights) for row in scores], axis=0)
+            closed[r, i] = np.clip((reference - after) / span, -1.0, 1.0)
     curves = np.nan_to_num(closed.mean(axis=0), nan=-1.0)  # (strengths, replicates)
     peaks = np.array([_peak(u, curves[:, b]) for b in range(n_boot)])
     lo, hi = np.quantile(peaks, [(1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2])

@@ -32,7 +32,7 @@ from .diagnosis import (
     localise,
     probe_transfer,
     rank_candidates,
-    reference_aucs,
+    reference_scores,
     rung_gaps,
     scored_rungs,
     shapley_values,
@@ -370,7 +370,7 @@ def run_diagnosis(
                      n_floor=budget.n_floor, seed=seed)  # fmt: skip
     location = localise(gaps, alpha=alpha)
     rungs = scored_rungs(location)
-    before = reference_aucs(nominal, real_features, rungs)
+    before = reference_scores(nominal, real_features, rungs)
     timing["fit"] = time.perf_counter() - tick
 
     jobs = [SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))]
@@ -406,7 +406,7 @@ def run_diagnosis(
             fit_strength(
                 result, [sets[_label(c, v)] for v in values], nominal, real_features, gaps,
                 rungs, log_scale=c.log_scale, n_boot=budget.n_boot,
-                rng=np.random.default_rng([seed, 7, i]),
+                rng=np.random.default_rng([seed, 7, i]), before=before,
             )
             for i, (result, (c, values)) in enumerate(zip(score(plan), plan, strict=True))
         ]  # fmt: skip
@@ -466,7 +466,8 @@ def run_diagnosis(
         "rungs": {n: g.to_json() for n, g in gaps.items()},
         "location": location,
         "scored_rungs": rungs,
-        "reference_auc": before,
+        "reference_auc": before.auc,
+        "reference_classifier": before.to_json(),
         "candidates": {r.name: {**r.to_json(), "best": r.best} for r in results},
         "null": null.to_json(),
         "ranking": ranking,

@@ -12,6 +12,7 @@ from sim2real.diagnosis import (
     localise,
     probe_transfer,
     rank_candidates,
+    reference_scores,
     rung_gaps,
     scored_rungs,
     shapley_values,
@@ -134,6 +135,42 @@ def test_the_strength_fit_lands_between_grid_points_with_an_interval_that_covers
     switch = candidate_result("physics.s", "physics", (None,), sets[:1], sim, real, gaps, rungs)
     assert fit_strength(switch, sets[:1], sim, real, gaps, rungs, log_scale=False, n_boot=50,
                         rng=np.random.default_rng(0)) is switch  # fmt: skip
+
+
+def test_two_strong_effects_are_scored_by_the_divergence_where_the_auc_saturates():
+    # R differs from S by two strong shifts: S with either one added is still told apart
+    # from R perfectly, so every AUC stays at 1 (round 2, pair 8025).
+    first_dims, second_dims = [0, 1], [2, 3]
+    both = _shift(first_dims, 4.0) + _shift(second_dims, 4.0)
+    sim, real = _domain(0), _domain(1, pixel_shift=both)
+    gaps = rung_gaps(sim, real, n_perm=99, n_boot=49, n_floor=4, seed=0)
+    rungs = scored_rungs(localise(gaps))
+    before = reference_scores(sim, real, rungs)
+    assert "pixel" in rungs and before.saturated("pixel")
+    sizes = (2.0, 4.0, 6.0)
+
+    def result(name, dims):
+        sets = [_shifted(sim, "pixel", _shift(dims, a)) for a in sizes]
+        return candidate_result(name, "camera", sizes, sets, sim, real, gaps, rungs, before), sets
+
+    first, sets = result("visual.first", first_dims)
+    second, _ = result("visual.second", second_dims)
+    wrong, _ = result("visual.wrong", [5, 6])
+    # either effect alone leaves the AUC at 1: its closure would be 0 for every candidate
+    assert reference_scores(sets[1], real, ["pixel"]).auc["pixel"] >= 0.99
+    for right in (first, second):
+        assert right.best_strength == 4.0
+        assert right.best_score > max(wrong.best_score, 0.0) + 0.05
+    assert wrong.best_score < 0.02
+    # the strength fit re-scores the divergence too: the interval covers the planted 4
+    fitted = fit_strength(first, sets, sim, real, gaps, rungs, log_scale=False, n_boot=100,
+                          rng=np.random.default_rng(0), before=before)  # fmt: skip
+    assert fitted.interval[0] <= 4.0 <= fitted.interval[1]
+    # the two together close the whole gap
+    joint = _shifted(sim, "pixel", both)
+    together = candidate_result("coalition", "coalition", (None,), [joint], sim, real, gaps,
+                                rungs, before)  # fmt: skip
+    assert together.best_score > 0.8
 
 
 def test_an_effect_outside_the_library_gives_the_open_set_answer(planted):

@@ -122,6 +122,37 @@ def test_auc_matches_pairwise_count_with_ties():
     assert st.auc_score([3.0, 3.0], [0, 1]) == 0.5
 
 
+def test_classifier_divergence_keeps_growing_where_the_auc_stops():
+    rng = np.random.default_rng(0)
+    n = 20000
+    labels = np.r_[np.zeros(n), np.ones(n // 2)]
+
+    def exact_logits(shifts):
+        """Log density ratio of N(shifts, I) to N(0, I) at samples of both classes."""
+        shifts = np.asarray(shifts, dtype=np.float64)
+        x = rng.normal(size=(len(labels), len(shifts))) + labels[:, None] * shifts
+        return x @ shifts - 0.5 * shifts @ shifts
+
+    # the Jeffreys divergence of two unit Gaussians d apart is d^2, additive over dimensions
+    for shifts in ([1.0], [2.0, 1.0], [6.0], [8.0]):
+        expected = float(np.sum(np.square(shifts)))
+        got = st.classifier_divergence(exact_logits(shifts), labels)
+        assert got == pytest.approx(expected, rel=0.05, abs=0.05)
+    # at 6 and 8 standard deviations both AUCs are 1, the divergences 36 and 64
+    assert st.auc_score(exact_logits([6.0]), labels) > 0.999
+    # logits that carry no information: zero
+    assert st.classifier_divergence(rng.normal(size=len(labels)), labels) == pytest.approx(
+        0.0, abs=0.05
+    )
+    # weights of 1 change nothing; doubling every class-1 weight leaves the class means alone
+    scores = exact_logits([1.0])
+    weights = np.ones((len(labels), 3))
+    plain = st.classifier_divergence(scores, labels)
+    assert np.allclose(st.classifier_divergence(scores, labels, weights), plain, rtol=1e-12)
+    weights[labels == 1] = 2.0
+    assert np.allclose(st.classifier_divergence(scores, labels, weights), plain, rtol=1e-12)
+
+
 def test_median_bandwidth():
     assert st.median_bandwidth(np.array([[0.0], [1.0], [2.0]])) == pytest.approx(math.sqrt(0.5))
     assert st.median_bandwidth(np.ones((5, 3))) == 1.0
