@@ -304,11 +304,15 @@ class DatasetSpec:
 
         ``store_passes`` appears only when on and ``material_set`` only when it is not
         :data:`~simulator.cloth.material.WANG54`, so datasets made before they existed keep
-        their keys (and resume); :meth:`from_json` reads a missing set as ``WANG54``.
+        their keys (and resume); :meth:`from_json` reads a missing set as ``WANG54``. The
+        Newton loop's ``whole_step`` (same arithmetic, one compiled call) appears only when
+        off, for the same reason.
         """
         out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
         if not self.store_passes:
             del out["store_passes"]
+        if out["sim"]["newton"].get("whole_step", True):
+            del out["sim"]["newton"]["whole_step"]
         if self.material_set == WANG54:
             del out["material_set"]
         return out

@@ -65,6 +65,11 @@ def test_default_set_leaves_the_spec_keys_of_existing_datasets_unchanged():
     assert "material_set" not in tiny_spec().to_json()
     assert full.classes == tuple(range(54))
     assert DatasetSpec.from_json(tiny_spec().to_json()).material_set == WANG54
+    # the Newton loop's whole_step (same arithmetic) enters the JSON only when off
+    newton = dataclasses.replace(tiny.sim.newton, whole_step=False)
+    off = dataclasses.replace(tiny, sim=dataclasses.replace(tiny.sim, newton=newton))
+    assert off.to_json()["sim"]["newton"]["whole_step"] is False
+    assert off.key() != tiny.key() and DatasetSpec.from_json(off.to_json()) == off
 
 
 def test_another_set_enters_the_spec_and_its_keys():
