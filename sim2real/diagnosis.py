@@ -295,14 +295,18 @@ def _oof(sim: LadderFeatures, features: LadderFeatures, real: LadderFeatures, ru
     ])  # fmt: skip
 
 
-def _auc(scores: np.ndarray, n: int) -> float:
+def _over_repeats(measure, scores: np.ndarray, n: int) -> float:
+    """``measure(row, labels)`` averaged over the repeats of out-of-fold scores (first n: S)."""
     labels = np.r_[np.zeros(n), np.ones(scores.shape[1] - n)]
-    return float(np.mean([auc_score(row, labels) for row in scores]))
+    return float(np.mean([measure(row, labels) for row in scores]))
+
+
+def _auc(scores: np.ndarray, n: int) -> float:
+    return _over_repeats(auc_score, scores, n)
 
 
 def _divergence(scores: np.ndarray, n: int) -> float:
-    labels = np.r_[np.zeros(n), np.ones(scores.shape[1] - n)]
-    return float(np.mean([classifier_divergence(row, labels) for row in scores]))
+    return _over_repeats(classifier_divergence, scores, n)
 
 
 SATURATED_AUC = 0.99
@@ -321,7 +325,7 @@ class ReferenceScores:
 
     auc: dict[str, float]
     divergence: dict[str, float]
-    """Classifier divergence [nats] (log 2 minus the balanced held-out cross-entropy)."""
+    """Classifier divergence [nats]: mean held-out logit of R minus that of S."""
 
     def saturated(self, rung: str) -> bool:
         """Whether ``rung`` is scored by the divergence (:data:`SATURATED_AUC`)."""

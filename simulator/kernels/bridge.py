@@ -220,12 +220,9 @@ def _solve_arrays(pattern, aggregates: torch.Tensor) -> tuple:
     if hit is not None and hit[0] is aggregates:
         return hit[1]
     cols = _np(pattern.cols)
-    diag_slots = np.arange(cols.shape[0]) * cols.shape[1] + np.argmax(
-        cols == np.arange(cols.shape[0])[:, None], axis=1
-    )
     agg = _np(aggregates)
     n_agg = int(agg.max()) + 1
-    out = (cols, diag_slots, agg, coarse_envelope(cols, agg, n_agg), n_agg)
+    out = (cols, _np(pattern.diagonal_slots()), agg, coarse_envelope(cols, agg, n_agg), n_agg)
     pattern._slot_cache[key] = (aggregates, out)
     return out
 

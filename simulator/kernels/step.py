@@ -3,11 +3,11 @@
 When every term besides the membrane and bending is a per-vertex quadratic over the step
 (inertia, gravity, the linearised air forces and their damping), the potential is
 ``shell(x) + 1/2 y^T Q y - g^T y + const`` with ``y = x - z`` (``z`` the inertial prediction)
-and 3x3 blocks ``Q_i`` on the diagonal. Then the
-whole Newton loop (fused element pass, coarse factor, two-level PCG, backtracking line search)
-runs as one call, each instance in its own thread and with its own iteration counts, with the
-arithmetic of :func:`simulator.solvers.newton.newton_minimize`; no torch operation and no
-host sync inside a step.
+and 3x3 blocks ``Q_i`` on the diagonal. Then the whole Newton loop (fused element pass, coarse
+factor, two-level PCG, backtracking line search) runs as one call, each instance in its own
+thread and with its own iteration counts, with the arithmetic of
+:func:`simulator.solvers.newton.newton_minimize`; no torch operation and no host sync inside
+a step.
 """
 
 from __future__ import annotations

@@ -64,6 +64,15 @@ class BlockPattern:
         self._slot_cache[key] = (topology, slots)
         return slots
 
+    def diagonal_slots(self) -> torch.Tensor:
+        """Flat slot ``row * K + k`` of each row's diagonal block (V,), computed once."""
+        cached = self._slot_cache.get("diagonal")
+        if cached is None:
+            rows = torch.arange(self.cols.shape[0], device=self.cols.device)
+            first = (self.cols == rows[:, None]).int().argmax(dim=1)
+            cached = self._slot_cache["diagonal"] = rows * self.cols.shape[1] + first
+        return cached
+
     def to(self, device=None, dtype=None) -> BlockPattern:
         """Copy to ``device``."""
         return BlockPattern(self.cols.to(device))
@@ -111,14 +120,8 @@ class BlockSparse:
         self.values.view(blocks.shape[0], -1, 3, 3).index_add_(1, self._diag_slots(), blocks)
 
     def _diag_slots(self) -> torch.Tensor:
-        """Flat slot of each row's diagonal block (V,), computed once per pattern."""
-        cached = self.pattern._slot_cache.get("diagonal")
-        if cached is None:
-            cols = self.pattern.cols
-            rows = torch.arange(cols.shape[0], device=cols.device)
-            first = (cols == rows[:, None]).int().argmax(dim=1)
-            cached = self.pattern._slot_cache["diagonal"] = rows * cols.shape[1] + first
-        return cached
+        """Flat slot of each row's diagonal block (V,) (:meth:`BlockPattern.diagonal_slots`)."""
+        return self.pattern.diagonal_slots()
 
     def diagonal(self) -> torch.Tensor:
         """Diagonal 3x3 blocks, shape (B, V, 3, 3)."""
