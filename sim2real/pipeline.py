@@ -26,9 +26,12 @@ from simulator.threads import use_process_threads
 from .candidates import Candidate, candidate_library, select_candidates
 from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
 from .diagnosis import (
+    agrees,
     best_subset_values,
     candidate_result,
     fit_strength,
+    kernel_closure,
+    kernel_rungs,
     localise,
     probe_transfer,
     rank_candidates,
@@ -432,7 +435,7 @@ def run_diagnosis(
     null = candidate_result(
         "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs, before
     )
-    ranking = rank_candidates(results, null)
+    ranking = rank_candidates(results, null, gaps, rungs)
     residual = _residual_gap(ranking, plan, results, sets, real_features, budget, alpha, seed)
     probes = probe_transfer(nominal, real_features)
     timing["fit"] += time.perf_counter() - tick
@@ -449,6 +452,10 @@ def run_diagnosis(
     timing["total"] = time.perf_counter() - start
 
     name = name or f"{real_dir.name}-{Path(run).name}"
+
+    def kernel(r):
+        return kernel_closure(r, ranking["kernel_rungs"])
+
     result = {
         "name": name,
         "inputs": {
@@ -468,8 +475,9 @@ def run_diagnosis(
         "scored_rungs": rungs,
         "reference_auc": before.auc,
         "reference_classifier": before.to_json(),
-        "candidates": {r.name: {**r.to_json(), "best": r.best} for r in results},
-        "null": null.to_json(),
+        "candidates": {r.name: {**r.to_json(), "best": r.best, "kernel_closure": kernel(r)}
+                       for r in results},
+        "null": {**null.to_json(), "kernel_closure": kernel(null)},
         "ranking": ranking,
         "residual": residual,
         "shapley": shapley,
@@ -588,19 +596,24 @@ def _explained_together(ranking: dict, shapley: dict | None) -> dict:
     """The ranking, explained by the top candidate's best coalition when it alone is not.
 
     Two effects at once (a sealed pair, a real camera with two faults) each close only part
-    of the gap; when a coalition holding the top candidate reaches the open-set threshold,
-    the gap is explained by it (``explained_by``), the top candidate named first.
+    of the gap; when a coalition holding the top candidate reaches the open-set threshold and
+    its kernel closure confirms it (:func:`sim2real.diagnosis.agrees`), the gap is explained
+    by it (``explained_by``), the top candidate named first.
     """
     if ranking["explained"] or not shapley or ranking["top"] is None:
         return ranking
-    holding = {k: v for k, v in shapley["coalitions"].items() if ranking["top"] in k.split("+")}
+    holding = {
+        k: v for k, v in shapley["coalitions"].items()
+        if ranking["top"] in k.split("+") and agrees(shapley["kernel_closure"][k])
+    }  # fmt: skip
     if not holding:
         return ranking
     best = max(holding, key=holding.get)
     if holding[best] < ranking["threshold"]:
         return ranking
-    return {**ranking, "explained": True, "explained_by": best.split("+"),
-            "explained_by_score": holding[best]}  # fmt: skip
+    return {**ranking, "explained": True, "look_alike": False, "explained_by": best.split("+"),
+            "explained_by_score": holding[best],
+            "explained_by_kernel_closure": shapley["kernel_closure"][best]}  # fmt: skip
 
 
 def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
@@ -626,24 +639,32 @@ def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
 
 
 def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> dict | None:
-    """Shapley values of the top candidates from the coalition sets (``None``: < 2 players)."""
+    """Shapley values of the top candidates from the coalition sets (``None``: < 2 players).
+
+    Also each coalition's kernel closure (:func:`sim2real.diagnosis.kernel_closure`), which
+    :func:`_explained_together` checks.
+    """
     if not coalitions:
         return None
     by_name = {r.name: r for r in results}
     players = sorted({n for label in coalitions for n in label.split(":", 1)[1].split("+")})
+    on = kernel_rungs(gaps, rungs)
     value = {frozenset(): 0.0}
     value.update({frozenset([n]): by_name[n].best_score for n in players})
+    kernel = {}
     for label in coalitions:
         names = label.split(":", 1)[1].split("+")
         scored = candidate_result(label, "coalition", (None,), [sets[label]], nominal, real,
                                   gaps, rungs, before)  # fmt: skip
         value[frozenset(names)] = scored.best_score
+        kernel["+".join(sorted(names))] = kernel_closure(scored, on)
     closure = best_subset_values(value)
     return {
         "players": players,
         "values": shapley_values(players, closure),
         "coalitions": {"+".join(sorted(k)): v for k, v in value.items() if len(k) > 1},
         "closure": {"+".join(sorted(k)): v for k, v in closure.items() if len(k) > 1},
+        "kernel_closure": kernel,
     }
 
 

@@ -88,6 +88,15 @@ def verdict(result: dict) -> str:
             parts.append(
                 "It cannot be told apart from " + ", ".join(ranking["confusable_with_top"]) + "."
             )
+    elif ranking.get("look_alike"):
+        top = result["candidates"][ranking["top"]]
+        parts.append(
+            f"{ranking['top']} closes {100 * top['best_score']:.0f} % of the classifier gap "
+            f"but only {100 * ranking['kernel_closure']:.0f} % of the kernel distance on "
+            f"{', '.join(ranking['kernel_rungs'])} (both must reach "
+            f"{100 * ranking['kernel_threshold']:.0f} %): a look-alike, not the cause. "
+            f"Unexplained residual at stage {result['residual_stage']}."
+        )
     else:
         parts.append(
             f"No candidate closes at least {100 * ranking['threshold']:.0f} % of it: "
@@ -263,6 +272,10 @@ _RUNG_HEADER = [
 ]  # fmt: skip
 
 
+def _percent(value: float | None) -> str:
+    return "–" if value is None else f"{100 * value:.0f} %"
+
+
 def _candidate_rows(result: dict) -> list[list]:
     rows = []
     rungs = result["scored_rungs"]
@@ -275,14 +288,16 @@ def _candidate_rows(result: dict) -> list[list]:
         rows.append([
             rank, name, entry["stage"], _fmt(entry["best_strength"]),
             "" if lo is None else f"[{_fmt(lo)}, {_fmt(hi)}]",
-            f"{100 * entry['best_score']:.0f} %", *closes,
+            f"{100 * entry['best_score']:.0f} %", _percent(entry.get("kernel_closure")),
+            *closes,
         ])  # fmt: skip
     null = result.get("null")
     if null is not None:
         closure = null.get("closure_auc") or null["closure"]
         closes = [f"{100 * closure[r][0]:.0f} %" for r in rungs]
         rows.append(["–", "S' (fresh nominal draw)", "null", "", "",
-                     f"{100 * null['best_score']:.0f} %", *closes])  # fmt: skip
+                     f"{100 * null['best_score']:.0f} %", _percent(null.get("kernel_closure")),
+                     *closes])  # fmt: skip
     return rows
 
 
@@ -380,7 +395,10 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "",
         f"Scored rungs: {', '.join(result['scored_rungs']) or 'none'}. Score = mean fraction "
         "of the floor-corrected domain-classifier AUC that S_e closes at the fitted strength "
-        "(AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor).",
+        "(AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor); kernel = mean fraction of the "
+        "floor-corrected MMD² closed on the scored rungs where it lies above its floor ("
+        + (", ".join(result["ranking"].get("kernel_rungs", ())) or "none")
+        + "). A cause must reach the threshold on both.",
         "",
         markdown_table(
             [
@@ -390,6 +408,7 @@ def _markdown(result: dict, figures: list[str]) -> str:
                 "fitted strength",
                 "interval",
                 "score",
+                "kernel",
                 *[f"closes {r}" for r in result["scored_rungs"]],
             ],
             _candidate_rows(result),

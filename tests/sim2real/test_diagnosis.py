@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 
 from sim2real.diagnosis import (
+    KERNEL_MIN_CLOSURE,
+    OPEN_SET_MIN_CLOSURE,
     best_subset_values,
     candidate_result,
     fit_strength,
+    kernel_closure,
+    kernel_rungs,
     localise,
     probe_transfer,
     rank_candidates,
@@ -98,7 +102,7 @@ def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
         [_shifted(sim, "motion", _shift([0, 1], a)) for a in sizes], sim, real, gaps, rungs,
     )  # fmt: skip
     null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
-    ranking = rank_candidates([wrong, physics, right], null)
+    ranking = rank_candidates([wrong, physics, right], null, gaps, rungs)
     assert ranking["ranking"][0] == "visual.right"
     assert ranking["explained"]
     assert right.best_strength == 1.5
@@ -195,9 +199,51 @@ def test_an_effect_outside_the_library_gives_the_open_set_answer(planted):
         for d in (0, 1, 2)
     ]
     null = candidate_result("S'", "null", (None,), [_domain(8)], sim, real, gaps, rungs)
-    ranking = rank_candidates(results, null)
+    ranking = rank_candidates(results, null, gaps, rungs)
     assert not ranking["explained"]
     assert ranking["threshold"] >= 0.3
+
+
+def _spread(base: LadderFeatures, rung: str, dims, factor: float) -> LadderFeatures:
+    """``base`` with the spread of ``dims`` on ``rung`` about their mean scaled by ``factor``."""
+    rungs = dict(base.rungs)
+    x = rungs[rung].copy()
+    x[:, dims] = x[:, dims].mean(axis=0) + factor * (x[:, dims] - x[:, dims].mean(axis=0))
+    rungs[rung] = x
+    rungs["enc.block1"] = _layer(rungs["pixel"], rungs["motion"])
+    return LadderFeatures(rungs, base.groups, base.class_id, base.stiffness, base.density)
+
+
+def test_a_look_alike_that_the_classifier_cannot_tell_apart_fails_the_kernel_check(planted):
+    # R = S shifted in pixel dims 0-2. The look-alike makes the same shift and also triples
+    # the spread of dims 4-7: invisible to the linear domain classifier, so it closes the
+    # classifier gap like the right effect, but it moves the distribution away from R.
+    sim, real, gaps = planted
+    rungs = scored_rungs(localise(gaps))
+    sizes = (0.5, 1.5, 3.0)
+    shifted = [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes]
+    right = candidate_result("visual.right", "camera", sizes, shifted, sim, real, gaps, rungs)
+    alike = candidate_result(
+        "visual.alike", "camera", sizes, [_spread(f, "pixel", [4, 5, 6, 7], 3.0) for f in shifted],
+        sim, real, gaps, rungs,
+    )  # fmt: skip
+    null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
+    on = kernel_rungs(gaps, rungs)
+    assert "pixel" in on
+    assert alike.best_score >= OPEN_SET_MIN_CLOSURE  # the classifier alone would name it
+    assert kernel_closure(right, on) > 0.8
+    assert alike.closure["pixel"][alike.best] < 0.0  # it moves the pixels further from R
+    assert kernel_closure(alike, on) < KERNEL_MIN_CLOSURE
+    ranking = rank_candidates([alike, null], null, gaps, rungs)
+    assert ranking["top"] == "visual.alike"
+    assert not ranking["explained"] and ranking["look_alike"]
+    assert ranking["kernel_closure"] == kernel_closure(alike, on)
+    ranking = rank_candidates([right, null], null, gaps, rungs)
+    assert ranking["top"] == "visual.right"
+    assert ranking["explained"] and not ranking["look_alike"]
+    # with no rung above its MMD² floor the kernel cannot refute: the classifier decides
+    assert kernel_closure(alike, []) is None
+    assert rank_candidates([right], null, gaps, [])["kernel_closure"] is None
 
 
 def test_probes_transfer_only_where_the_real_labels_follow_the_features():

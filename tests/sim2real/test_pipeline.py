@@ -152,6 +152,22 @@ def test_drawn_answers_cover_single_pair_and_open_kinds():
     assert draw_answer(5, library) == draw_answer(5, library)
 
 
+def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees():
+    from sim2real.pipeline import _explained_together
+
+    ranking = {"explained": False, "top": "a", "threshold": 0.5, "look_alike": True}
+    shapley = {"coalitions": {"a+b": 0.8, "a+c": 0.7, "b+c": 0.9},
+               "kernel_closure": {"a+b": 0.1, "a+c": 0.6, "b+c": 1.0}}  # fmt: skip
+    out = _explained_together(ranking, shapley)
+    # a+b closes more of the classifier gap but not of the kernel distance; b+c lacks the top
+    assert out["explained"] and out["explained_by"] == ["a", "c"] and not out["look_alike"]
+    assert out["explained_by_kernel_closure"] == 0.6
+    shapley["kernel_closure"]["a+c"] = 0.4
+    assert _explained_together(ranking, shapley) == ranking
+    shapley["kernel_closure"]["a+c"] = None  # no rung above its MMD² floor: cannot refute
+    assert _explained_together(ranking, shapley)["explained_by"] == ["a", "c"]
+
+
 def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_path):
     out = tmp_path / "report"
     result = _diagnose(world, out)
@@ -170,6 +186,9 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert sum(shapley["values"].values()) == pytest.approx(shapley["closure"][grand])
     assert shapley["closure"][grand] >= shapley["coalitions"][grand]
     assert shapley["closure"][grand] >= noise["best_score"]
+    assert set(shapley["kernel_closure"]) == set(shapley["coalitions"])
+    assert result["ranking"]["kernel_closure"] == noise["kernel_closure"] >= 0.5
+    assert not result["ranking"]["look_alike"]
     residual = result["residual"]  # the gap tests between R and the top's best set
     assert residual["candidate"] == "visual.sensor_noise"
     assert residual["strength"] in noise["strengths"]
