@@ -1,13 +1,18 @@
 """Simulator speed under a concurrent CPU load, by torch thread count (oversubscription check).
 
-``python -m benchmarks.thread_load_bench [--steps 100] [--repeats 3]``
+``python -m benchmarks.thread_load_bench [--steps 100] [--repeats 3] [--backend kernels|torch]
+[--batch 1]``
 
-Workload: one 32 x 32 wind cloth (W3, 5 ms steps) from rest, ``--steps`` steps, one Newton
-step per time step. For each thread setting (``1`` = one torch thread per process, this
-project's default for simulating processes; ``default`` = torch's own, one per core) it times
-the workload on a quiet machine and then beside a second process that runs the same workload
-with the same thread setting in a loop (two simulations sharing the CPU, as two dataset
-workers or a benchmark beside a test run do).
+Workload: ``--batch`` 32 x 32 wind cloths (W3, 5 ms steps) from rest, ``--steps`` steps, one
+Newton step per time step, on the compiled kernels (the CPU default; their parallel loops
+take the process's torch thread count) or the torch path. For each thread setting (``1`` =
+one torch thread per process, this project's default for simulating processes; ``default`` =
+torch's own, one per core) it times the workload on a quiet machine and then beside a second
+process that runs the same workload with the same thread setting in a loop (two simulations
+sharing the CPU, as two dataset workers or a benchmark beside a test run do). Both processes
+start with this process's environment, which ``import simulator`` gives
+``OMP_WAIT_POLICY=PASSIVE`` unless it was set (:mod:`simulator.threads`); run it with
+``OMP_WAIT_POLICY=ACTIVE`` to see OpenMP's spinning threads.
 
 The fair slowdown is what the lost CPU share explains: two processes of ``t`` threads each
 on ``c`` cores may each slow by ``max(1, 2 t / c)``. The table prints the measured slowdown
@@ -37,14 +42,18 @@ CLASS_ID = 13
 WIND_LEVEL = 2
 
 
-def workload(steps: int) -> float:
-    """Wall seconds of ``steps`` backward-Euler steps of one 32 x 32 wind cloth."""
+def workload(steps: int, backend: str = "kernels", batch: int = 1) -> float:
+    """Wall seconds of ``steps`` backward-Euler steps of ``batch`` 32 x 32 wind cloths."""
     scene = ScenarioWind(resolution_level=3, settle_time=0.0, ramp_time=0.25)
     model, state, driver = scene.build(
-        ClothMaterial.from_classes([CLASS_ID]), seeds=[0], wind_levels=[WIND_LEVEL]
-    )
-    state, _ = solve_static(model, state, driver.control(0.0, state.pos))
-    integrator = IntegratorBackwardEuler(NewtonSettings(max_iters=1, cg_rtol=1e-2))
+        ClothMaterial.from_classes([CLASS_ID] * batch), seeds=list(range(batch)),
+        wind_levels=[WIND_LEVEL] * batch,
+    )  # fmt: skip
+    static = NewtonSettings(max_iters=50, tol_dx=1e-9, cg_rtol=1e-6, cg_max_iters=1000,
+                            backend=backend)  # fmt: skip
+    state, _ = solve_static(model, state, driver.control(0.0, state.pos), settings=static)
+    integrator = IntegratorBackwardEuler(NewtonSettings(max_iters=1, cg_rtol=1e-2,
+                                                        backend=backend))  # fmt: skip
     start = time.perf_counter()
     for k in range(1, steps + 1):
         state, _ = integrator.step(model, state, driver.control(k * DT, state.pos), DT)
@@ -55,32 +64,45 @@ def _threads_arg(text: str) -> int | None:
     return None if text == "default" else int(text)
 
 
-def _start_load(threads: str, steps: int) -> subprocess.Popen:
-    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+def _worker_args(args: argparse.Namespace, threads: str) -> list[str]:
+    return ["--threads", threads, "--steps", str(args.steps), "--repeats", str(args.repeats),
+            "--backend", args.backend, "--batch", str(args.batch)]  # fmt: skip
+
+
+def _child_env() -> dict:
+    return {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def _start_load(args: argparse.Namespace) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "benchmarks.thread_load_bench", "--load-worker",
-           "--threads", threads, "--steps", str(steps)]  # fmt: skip
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+           *_worker_args(args, args.threads)]  # fmt: skip
+    return subprocess.Popen(cmd, env=_child_env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)  # fmt: skip
 
 
-def measure(threads: str, steps: int, repeats: int) -> dict:
+def measure(args: argparse.Namespace, threads: str) -> dict:
     """Quiet and loaded medians for one thread setting (run in a fresh child process)."""
     cmd = [sys.executable, "-m", "benchmarks.thread_load_bench", "--measure-worker",
-           "--threads", threads, "--steps", str(steps), "--repeats", str(repeats)]  # fmt: skip
-    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout
+           *_worker_args(args, threads)]  # fmt: skip
+    out = subprocess.run(cmd, env=_child_env(), check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
-def _measure_worker(threads: str, steps: int, repeats: int) -> None:
+def _use_threads(threads: str) -> None:
     count = _threads_arg(threads)
     if count is not None:
         use_process_threads(count)
-    workload(10)  # warm-up (allocator, first-call overheads)
-    quiet = [workload(steps) for _ in range(repeats)]
-    load = _start_load(threads, steps)
+
+
+def _measure_worker(args: argparse.Namespace) -> None:
+    _use_threads(args.threads)
+    run = (args.steps, args.backend, args.batch)
+    workload(10, args.backend, args.batch)  # warm-up (allocator, compiled kernels)
+    quiet = [workload(*run) for _ in range(args.repeats)]
+    load = _start_load(args)
     try:
         time.sleep(2.0)  # let the load start simulating
-        loaded = [workload(steps) for _ in range(repeats)]
+        loaded = [workload(*run) for _ in range(args.repeats)]
     finally:
         load.kill()
         load.wait()
@@ -94,23 +116,23 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--backend", default="kernels", choices=["kernels", "torch"])
+    parser.add_argument("--batch", type=int, default=1, help="cloths simulated at once")
     parser.add_argument("--threads", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--load-worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--measure-worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.load_worker:
-        count = _threads_arg(args.threads)
-        if count is not None:
-            use_process_threads(count)
+        _use_threads(args.threads)
         while True:
-            workload(args.steps)
+            workload(args.steps, args.backend, args.batch)
     if args.measure_worker:
-        _measure_worker(args.threads, args.steps, args.repeats)
+        _measure_worker(args)
         return {}
     cores = os.cpu_count() or 1
     rows = {}
     for setting in ("1", "default"):
-        r = measure(setting, args.steps, args.repeats)
+        r = measure(args, setting)
         quiet, loaded = statistics.median(r["quiet_s"]), statistics.median(r["loaded_s"])
         rows[setting] = {
             **r,
@@ -119,13 +141,15 @@ def main(argv: list[str] | None = None) -> dict:
             "slowdown": loaded / quiet,
             "fair_slowdown": max(1.0, 2 * r["threads"] / cores),
         }
-    print(f"{cores} cores, {args.steps} steps of a 32 x 32 wind cloth, medians of {args.repeats}")
+    print(f"{cores} cores, {args.steps} steps of {args.batch} 32 x 32 wind cloth(s) on "
+          f"{args.backend}, medians of {args.repeats}")  # fmt: skip
     print(f"{'threads':<10}{'quiet s':>10}{'loaded s':>10}{'slowdown':>10}{'fair':>8}")
     for setting, r in rows.items():
         label = f"{setting} ({r['threads']})"
         print(f"{label:<10}{r['quiet_median_s']:>10.2f}{r['loaded_median_s']:>10.2f}"
               f"{r['slowdown']:>10.2f}{r['fair_slowdown']:>8.2f}")  # fmt: skip
-    result = {"cores": cores, "steps": args.steps, "settings": rows}
+    result = {"cores": cores, "steps": args.steps, "backend": args.backend, "batch": args.batch,
+              "settings": rows}  # fmt: skip
     print(json.dumps(result))
     return result
 

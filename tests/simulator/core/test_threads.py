@@ -37,3 +37,18 @@ def test_use_process_threads_sets_torch_and_the_children_env(monkeypatch):
     torch.set_num_threads(2)
     use_process_threads(None)  # null: torch's default stays
     assert torch.get_num_threads() == 2
+
+
+@pytest.mark.parametrize(("preset", "expected"), [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
+def test_importing_the_simulator_makes_openmp_threads_sleep_unless_the_user_chose(preset,
+                                                                                   expected):
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if preset is not None:
+        env["OMP_WAIT_POLICY"] = preset
+    code = "import os, simulator; print(os.environ['OMP_WAIT_POLICY'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout  # fmt: skip
+    assert out.strip() == expected
