@@ -411,8 +411,7 @@ def candidate_result(
         for rung, gap in gaps.items():
             after = _distance(sim, features, real, rung, gap.bandwidth)
             mmd2[rung].append(after)
-            floor = gap.floor_mmd2 if math.isfinite(gap.floor_mmd2) else 0.0
-            closure[rung].append(gap_closed(gap.mmd2, after, floor))
+            closure[rung].append(gap_closed(gap.mmd2, after, _mmd2_floor(gap)))
         for rung in rungs:
             scores = _oof(sim, features, real, rung)
             oof[rung].append(scores)
@@ -423,6 +422,10 @@ def candidate_result(
     ]
     return CandidateResult(name, stage, tuple(strengths), mmd2, closure, score,
                            closure_auc=closure_auc, scores_oof=oof)  # fmt: skip
+
+
+def _mmd2_floor(gap: Gap) -> float:
+    return gap.floor_mmd2 if math.isfinite(gap.floor_mmd2) else 0.0
 
 
 def _auc_floor(gap: Gap) -> float:
@@ -524,12 +527,7 @@ def fit_strength(
 
 def kernel_rungs(gaps: dict[str, Gap], rungs: list[str]) -> list[str]:
     """The scored ``rungs`` where S vs R's MMD² lies above its floor (a closure is defined)."""
-    out = []
-    for rung in rungs:
-        floor = gaps[rung].floor_mmd2 if math.isfinite(gaps[rung].floor_mmd2) else 0.0
-        if gaps[rung].mmd2 > floor:
-            out.append(rung)
-    return out
+    return [r for r in rungs if gaps[r].mmd2 > _mmd2_floor(gaps[r])]
 
 
 def kernel_closure(result: CandidateResult, rungs: list[str]) -> float | None:
