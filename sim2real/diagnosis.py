@@ -47,6 +47,7 @@ from .stats import (
 
 __all__ = [
     "KERNEL_MIN_CLOSURE",
+    "OPEN_SET_MARGIN",
     "OPEN_SET_MIN_CLOSURE",
     "SATURATED_AUC",
     "CandidateResult",

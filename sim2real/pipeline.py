@@ -26,6 +26,7 @@ from simulator.threads import use_process_threads
 from .candidates import Candidate, candidate_library, select_candidates
 from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
 from .diagnosis import (
+    OPEN_SET_MARGIN,
     agrees,
     best_subset_values,
     candidate_result,
@@ -604,6 +605,12 @@ def _explained_together(ranking: dict, shapley: dict | None, alone: dict[str, fl
     shutter (set 8026) frame rate + lighting variation closed 75 % of the classifier gap, and
     adding the look-alike motion blur, the top candidate, lowered it to 73 %, yet the three
     together passed both thresholds.
+
+    The coalition must clear the threshold by :data:`~sim2real.diagnosis.OPEN_SET_MARGIN`,
+    the margin a single candidate keeps over a fresh nominal draw: its members' strengths
+    are all fitted and it is the best of several coalitions, so it closes more by chance.
+    Over blind rounds 1-3 the one coalition that named a true pair closed 95 % (7023); the
+    look-alike coalitions that passed the other conditions closed 51 and 56 % (9026, 9027).
     """
     if ranking["explained"] or not shapley or ranking["top"] is None:
         return ranking
@@ -621,7 +628,7 @@ def _explained_together(ranking: dict, shapley: dict | None, alone: dict[str, fl
     if not holding:
         return ranking
     best = max(holding, key=holding.get)
-    if holding[best] < ranking["threshold"]:
+    if holding[best] < ranking["threshold"] + OPEN_SET_MARGIN:
         return ranking
     return {**ranking, "explained": True, "look_alike": False, "explained_by": best.split("+"),
             "explained_by_score": holding[best],

@@ -171,6 +171,8 @@ def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_al
     assert _explained_together(ranking, shapley, alone) == ranking
     shapley["kernel_closure"]["a+c"] = None  # no rung above its MMD² floor: cannot refute
     assert _explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
+    shapley["coalitions"]["a+c"] = 0.6  # above the threshold, but not by the margin
+    assert _explained_together(ranking, shapley, alone) == ranking
 
 
 def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_path):
