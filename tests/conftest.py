@@ -9,6 +9,16 @@ from simulator.threads import torch_threads
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def subprocess_env() -> dict:
+    """Environment of a command-line test's child: one thread, the repository importable
+    ahead of (not instead of) the caller's PYTHONPATH."""
+    path = os.pathsep.join(filter(None, [REPO_ROOT, os.environ.get("PYTHONPATH")]))
+    return {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
+
+
 RTOL = 1e-6
 ATOL = 1e-9
 

@@ -1,7 +1,6 @@
 """Bad command-line values end each entry point with one line naming the field, before any
 work is done and before anything is written (issue 28, "no silent wrong results")."""
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +15,7 @@ import sim2real.diagnose as diagnose_entry
 import simulator.cloth.simulate as simulate_entry
 import train as train_entry
 from simulator.errors import InputError
+from tests.conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = str(ROOT / "configs")
@@ -167,7 +167,7 @@ def test_diagnose_checks_fields_before_it_starts(override, message, tmp_path):
     ],
 )  # fmt: skip
 def test_entry_points_print_one_line_and_exit_2(command, line, tmp_path):
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    env = subprocess_env()
     if command[0] == "train.py":
         command = [str(ROOT / "train.py"), *command[1:]]
     done = subprocess.run(

@@ -29,6 +29,7 @@ from datasets.preview import LABEL_WIDTH, label_height
 from models.material_classifier import MaterialClassifierModule
 from simulator.cloth.material import CLASS_COUNT, multipliers_from_class
 from simulator.errors import InputError
+from tests.conftest import subprocess_env
 
 from .conftest import write_mp4
 
@@ -310,7 +311,7 @@ def test_video_and_run_are_required(tmp_path):
 
 @pytest.mark.render
 def test_the_command_prints_one_line_and_exits_2(trained, tmp_path):
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    env = subprocess_env()
     done = subprocess.run(
         [sys.executable, "-m", "datasets.clone", f"video={tmp_path}/none.mp4", f"run={trained}",
          f"paths.root_dir={tmp_path}"],

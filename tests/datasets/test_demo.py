@@ -1,6 +1,5 @@
 """datasets.demo (the main job) end to end on a tiny setting, and its checks of bad fields."""
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +13,7 @@ import datasets.demo as demo
 from datasets.preview import LABEL_WIDTH, label_height
 from simulator.errors import InputError
 from simulator.sequence import MeshSequence
+from tests.conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = str(ROOT / "configs")
@@ -97,7 +97,7 @@ def test_bad_fields_are_refused_before_anything_runs(override, message, tmp_path
 
 
 def test_the_command_prints_one_line_for_a_bad_field(tmp_path):
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    env = subprocess_env()
     done = subprocess.run(
         [sys.executable, "-m", "datasets.demo", "classes=[1.7]", f"paths.root_dir={tmp_path}"],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,

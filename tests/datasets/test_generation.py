@@ -1,7 +1,6 @@
 """End-to-end generation: content, determinism, resume after interruption, verification."""
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -18,6 +17,7 @@ from datasets.manifest import Manifest
 from datasets.shards import ShardError
 from render.effects import VisualEffects
 from simulator.sequence import MeshSequence
+from tests.conftest import subprocess_env
 
 from .conftest import tiny_spec
 
@@ -96,8 +96,7 @@ def test_killed_process_resumes_to_the_uninterrupted_result(tmp_path, tiny_datas
         "from datasets.generation import generate_dataset\n"
         f"generate_dataset(tiny_spec(), {str(root)!r}, progress=False)\n"
     )
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.Popen([sys.executable, "-c", code], env=env)
+    proc = subprocess.Popen([sys.executable, "-c", code], env=subprocess_env())
     deadline = time.monotonic() + 240
     while not (root / "units" / "unit-0000.json").exists():
         assert proc.poll() is None, "generation ended before it could be killed"

@@ -262,7 +262,10 @@ def test_backend_resolution_and_bad_values():
         SimSettings(backend="fast")
     with pytest.raises(ValueError, match=r"NewtonSettings\.backend"):
         NewtonSettings(backend="auto")
-    assert SimSettings().resolved_newton().backend == "kernels"
+    assert resolve_backend("auto", "cuda") == "torch"
+    assert SimSettings(device="cpu").resolved_newton().backend == "kernels"
+    auto_device = "torch" if torch.cuda.is_available() else "kernels"
+    assert SimSettings().resolved_newton().backend == auto_device
     assert dataclasses.replace(SimSettings(), backend="torch").resolved_newton().backend == "torch"
 
 
