@@ -20,8 +20,13 @@ path or the kernels (``--reference-backend``) converged tightly (10 Newton itera
 vertex position difference per backend.
 
 Usage: ``python -m benchmarks.sim_bench [--repeats 3] [--batch-repeats 1] [--dtype float64]
-[--threads 1] [--backends kernels,torch] [--skip-batch]`` (one thread by default, as every
-simulating process; see :mod:`simulator.threads`).
+[--threads 1] [--backends kernels,torch] [--skip-batch] [--batch-sizes 54]
+[--reference-backend kernels|torch|none]`` (one thread by default, as every simulating process;
+see :mod:`simulator.threads`). ``--batch-sizes 54,540`` adds larger batches (the classes
+cycled), which is what a GPU needs to fill; ``--reference-backend none`` skips the accuracy
+reference (on CUDA the torch path's tight reference solve is launch-bound and slow; its
+agreement with the CPU is a test, ``test_cuda_matches_cpu_when_available``).
+Runs on CUDA when present (the torch path; the kernels are CPU-only).
 The last line is JSON; its top level holds the headline backend's ``backend``,
 ``pos_err_mean_m``, ``pos_err_max_m``, ``single_speedup_vs_mujoco`` and
 ``ratio_batch54_vs_mujoco``, and ``runs`` every backend's figures.
@@ -144,10 +149,21 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--reference-backend",
         default="kernels",
-        choices=["kernels", "torch"],
-        help="backend of the tightly converged accuracy reference",
+        choices=["kernels", "torch", "none"],
+        help="backend of the tightly converged accuracy reference (none: skip it)",
+    )
+    parser.add_argument(
+        "--batch-sizes",
+        default="54",
+        help="comma-separated instance counts of the batched runs (classes cycled)",
     )
     args = parser.parse_args(argv)
+    try:
+        batch_sizes = [int(b) for b in args.batch_sizes.split(",") if b.strip()]
+    except ValueError:
+        batch_sizes = []
+    if not batch_sizes or min(batch_sizes) < 1:
+        parser.error(f"--batch-sizes: comma-separated positive integers, got {args.batch_sizes!r}")
     use_process_threads(args.threads or None)
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     for backend in backends:
@@ -156,11 +172,14 @@ def main(argv: list[str] | None = None) -> dict:
         resolve_backend(BENCH_BACKENDS[backend][0], "cuda" if torch.cuda.is_available() else "cpu")
     dtype = getattr(torch, args.dtype)
     verts = 32 * 32
-    reference_settings = dataclasses.replace(REFERENCE, backend=args.reference_backend)
-    reference = run_ours([SINGLE_CLASS], torch.float64, reference_settings)["track"]
+    reference = None
+    if args.reference_backend != "none":
+        reference_settings = dataclasses.replace(REFERENCE, backend=args.reference_backend)
+        reference = run_ours([SINGLE_CLASS], torch.float64, reference_settings)["track"]
     result = {
         "machine": f"{platform.processor() or platform.machine()}, threads "
-        f"{torch.get_num_threads()}",
+        f"{torch.get_num_threads()}"
+        + (f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ""),
         "dtype": args.dtype,
         "dt_s": DT,
         "backend": backends[0],
@@ -176,14 +195,20 @@ def main(argv: list[str] | None = None) -> dict:
         run = {
             "device": single[0]["device"],
             "single": summarise([r["wall_s"] for r in single], verts, 1),
-            **position_error(single[0]["track"], reference),
+            **(
+                position_error(single[0]["track"], reference)
+                if reference is not None
+                else {"pos_err_mean_m": None, "pos_err_max_m": None}
+            ),
         }
         run["single"]["cg_iters_per_step"] = single[0]["cg_iters_per_step_max"]
-        if not args.skip_batch:
-            batch = [run_ours(list(range(54)), dtype, settings) for _ in range(args.batch_repeats)]
-            run["batch54"] = summarise([r["wall_s"] for r in batch], verts, 54)
-            run["batch54"]["cg_iters_per_step_max"] = batch[0]["cg_iters_per_step_max"]
-            run["batch54"]["finite"] = all(r["finite"] for r in batch)
+        for size in [] if args.skip_batch else batch_sizes:
+            classes = [c % 54 for c in range(size)]
+            batch = [run_ours(classes, dtype, settings) for _ in range(args.batch_repeats)]
+            key = f"batch{size}"
+            run[key] = summarise([r["wall_s"] for r in batch], verts, size)
+            run[key]["cg_iters_per_step_max"] = batch[0]["cg_iters_per_step_max"]
+            run[key]["finite"] = all(r["finite"] for r in batch)
         result["runs"][backend] = run
 
     from benchmarks.mujoco_cloth import run_mujoco_cloth
@@ -220,10 +245,8 @@ def main(argv: list[str] | None = None) -> dict:
             run["single_speedup_vs_mujoco"] = (
                 run["single"]["sim_vertex_seconds_per_wall_s"] / mj_rate
             )
-            if "batch54" in run:
-                run["ratio_batch54_vs_mujoco"] = (
-                    run["batch54"]["sim_vertex_seconds_per_wall_s"] / mj_rate
-                )
+            for key in [k for k in run if k.startswith("batch")]:
+                run[f"ratio_{key}_vs_mujoco"] = run[key]["sim_vertex_seconds_per_wall_s"] / mj_rate
     headline = result["runs"][backends[0]]
     for key in (
         "pos_err_mean_m",
@@ -239,10 +262,14 @@ def main(argv: list[str] | None = None) -> dict:
     )
     rows = []
     for backend, run in result["runs"].items():
-        err = f"{1e3 * run['pos_err_mean_m']:.3f}/{1e3 * run['pos_err_max_m']:.3f}"
+        err = (
+            f"{1e3 * run['pos_err_mean_m']:.3f}/{1e3 * run['pos_err_max_m']:.3f}"
+            if run["pos_err_mean_m"] is not None
+            else "-"
+        )
         rows.append((f"ours {backend} x1", run["single"], err))
-        if "batch54" in run:
-            rows.append((f"ours {backend} x54", run["batch54"], ""))
+        for key in [k for k in run if k.startswith("batch")]:
+            rows.append((f"ours {backend} x{key[5:]}", run[key], ""))
     if mj.get("available"):
         rows.append(
             (
