@@ -483,7 +483,7 @@ def run_diagnosis(
         "residual": residual,
         "shapley": shapley,
         "counterfactuals": swaps,
-        "residual_stage": stage_of_residual(location),
+        "residual_stage": stage_of_residual(location, ranking["stage_scores"]),
         "probes": probes,
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
         "timing": timing,

@@ -8,6 +8,7 @@ import pytest
 from sim2real.diagnosis import (
     KERNEL_MIN_CLOSURE,
     OPEN_SET_MIN_CLOSURE,
+    RESIDUAL_STAGE_MIN_CLOSURE,
     best_subset_values,
     candidate_result,
     fit_strength,
@@ -83,6 +84,26 @@ def test_the_gap_is_localised_on_the_planted_rung(planted):
     assert gaps["pixel"].corrected_auc > 0.5
     assert scored_rungs(location)[0] == "pixel"
     assert stage_of_residual(location).startswith("appearance or camera")
+
+
+def test_the_residual_stage_follows_the_candidates_that_close_most():
+    """A different wind moves the pixel statistics too; the partial closures place it."""
+    wind = {"significant": ["pixel", "motion", "lstm"], "first_significant_layer": "lstm"}
+    scores = {"scene": 0.12, "physics": 0.04, "appearance": 0.04, "camera": 0.01}
+    text = stage_of_residual(wind, scores)
+    assert text.startswith("physics or scene") and "12 %" in text
+    assert "appearance" not in text and "camera" not in text
+    scores = {"scene": 0.02, "physics": None, "appearance": 0.01, "camera": 0.36}
+    assert stage_of_residual(wind, scores).startswith("appearance or camera (the camera")
+    # closures below RESIDUAL_STAGE_MIN_CLOSURE are noise: the rung pattern decides
+    quiet = dict.fromkeys(("scene", "physics", "appearance"), RESIDUAL_STAGE_MIN_CLOSURE / 2)
+    assert stage_of_residual(wind, quiet) == "appearance or camera (the pixel statistics differ)"
+    motion = {"significant": ["motion"], "first_significant_layer": None}
+    assert stage_of_residual(motion, {}).startswith("physics or scene")
+    deep = {"significant": ["lstm"], "first_significant_layer": "lstm"}
+    assert stage_of_residual(deep, None).startswith("network features only")
+    none = {"significant": [], "first_significant_layer": None}
+    assert stage_of_residual(none, scores) == "none (no significant gap)"
 
 
 def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
