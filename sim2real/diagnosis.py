@@ -661,11 +661,11 @@ def stage_of_residual(location: dict, stage_scores: dict | None = None) -> str:
     if not location["significant"] and location["first_significant_layer"] is None:
         return "none (no significant gap)"
     if "pixel" in location["significant"]:
-        pattern = "the pixel statistics differ"
+        by_pattern, pattern = "appearance or camera", "the pixel statistics differ"
     elif "motion" in location["significant"]:
-        pattern = "the motion differs, the pixel statistics do not"
+        by_pattern, pattern = "physics or scene", "the motion differs, the pixel statistics do not"
     else:
-        pattern = "pixel and motion statistics agree"
+        by_pattern, pattern = "network features only", "pixel and motion statistics agree"
     scores = {k: v for k, v in (stage_scores or {}).items() if v is not None}
     best = max(scores, key=scores.get) if scores else None
     if best is not None and scores[best] >= RESIDUAL_STAGE_MIN_CLOSURE:
@@ -673,11 +673,7 @@ def stage_of_residual(location: dict, stage_scores: dict | None = None) -> str:
             f"{_STAGE_PAIR[best]} (the {best} candidates close most of it, "
             f"{100 * scores[best]:.0f} %, too little to name one; {pattern})"
         )
-    if "pixel" in location["significant"]:
-        return f"appearance or camera ({pattern})"
-    if "motion" in location["significant"]:
-        return f"physics or scene ({pattern})"
-    return f"network features only ({pattern})"
+    return f"{by_pattern} ({pattern})"
 
 
 def _ridge(x: np.ndarray, y: np.ndarray, l2: float = 1.0) -> np.ndarray:
