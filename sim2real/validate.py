@@ -27,7 +27,7 @@ from .candidates import candidate_library
 from .pipeline import Budget, load_run, run_diagnosis
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
-__all__ = ["ranking_stability", "score_set", "set_plan", "summarise"]
+__all__ = ["ranking_stability", "score_set", "set_plan", "stability_scores", "summarise"]
 
 TARGETS = {
     "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
@@ -93,6 +93,26 @@ def ranking_stability(rankings: list[list[str]], *, weighted: bool = False) -> f
     return float(np.mean(taus))
 
 
+def stability_scores(results: list[dict]) -> dict:
+    """Taus of one sealed set's diagnoses under several simulation seeds.
+
+    ``kendall_tau`` and ``weighted_tau`` compare the rankings of the diagnoses that found a
+    significant gap. A diagnosis that found none ranks nothing: every candidate scores 0 and
+    its order is the library's, so there is no ranking to compare, and it is counted in
+    ``no_gap_diagnoses`` instead. ``kendall_tau_all`` keeps it, in that order.
+    """
+    every = [r["ranking"]["ranking"] for r in results]
+    ranked = [r["ranking"]["ranking"] for r in results if r.get("scored_rungs")]
+    out = {
+        "kendall_tau_all": ranking_stability(every),
+        "no_gap_diagnoses": len(every) - len(ranked),
+    }
+    if len(ranked) > 1:
+        out["kendall_tau"] = ranking_stability(ranked)
+        out["weighted_tau"] = ranking_stability(ranked, weighted=True)
+    return out
+
+
 def summarise(rows: list[dict]) -> dict:
     """Rates over the scored sets (``None`` where no set applies)."""
 
@@ -107,7 +127,7 @@ def summarise(rows: list[dict]) -> dict:
     closed = [r["gap_closed"] for r in rows if r.get("gap_closed") is not None]
     out["gap_closed_median"] = float(np.median(closed)) if closed else None
     out["open_false_attribution"], out["open_n"] = rate("false_attribution")
-    for key in ("kendall_tau", "weighted_tau"):
+    for key in ("kendall_tau", "weighted_tau", "kendall_tau_all"):
         taus = [r[key] for r in rows if key in r]
         out[key] = float(np.mean(taus)) if taus else None
         out[f"{key}_n"] = len(taus)
@@ -163,6 +183,9 @@ def _table(summary: dict, rows: list[dict]) -> str:
         "| ranking stability (top-weighted tau, same draws) | – | "
         + ("–" if summary["weighted_tau"] is None else f"{summary['weighted_tau']:.2f}")
         + f" | {summary['weighted_tau_n']} |",
+        "| ranking stability, no-gap diagnoses kept in library order (Kendall tau) | – | "
+        + ("–" if summary["kendall_tau_all"] is None else f"{summary['kendall_tau_all']:.2f}")
+        + f" | {summary['kendall_tau_all_n']} |",
         f"| library effect left a significant gap | – | {pct(summary['detected'])} | "
         f"{summary['detected_n']} |",
         f"| effect top-1 where a gap was found | – | {pct(summary['top1_detected'])} | "
@@ -291,19 +314,17 @@ def main(argv: list[str] | None = None) -> None:
             "candidates": args.candidates.split(","), "n_jobs": args.n_jobs, "progress": False,
         }  # fmt: skip
         result = _diagnosed(out / "reports" / real.name, common)
-        rankings = [result["ranking"]["ranking"]]
+        reruns = [result]
         if len(rows) < args.stability:
             for sim_seed in (1, 2):
                 folder = out / "reports" / f"{real.name}-sim{sim_seed}"
                 if args.finished_only and not (folder / "report.json").is_file():
                     continue
-                again = _diagnosed(folder, {**common, "sim_seed": sim_seed})
-                rankings.append(again["ranking"]["ranking"])
+                reruns.append(_diagnosed(folder, {**common, "sim_seed": sim_seed}))
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
         row = score_set(result, answer)
-        if len(rankings) > 1:
-            row["kendall_tau"] = ranking_stability(rankings)
-            row["weighted_tau"] = ranking_stability(rankings, weighted=True)
+        if len(reruns) > 1:
+            row.update(stability_scores(reruns))
         row["minutes"] = (time.perf_counter() - start) / 60
         rows.append(row)
         print(json.dumps(row), flush=True)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from sim2real.validate import ranking_stability, score_set, summarise
+from sim2real.validate import ranking_stability, score_set, stability_scores, summarise
 
 
 def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="none"):
@@ -71,6 +71,25 @@ def test_kendall_tau_of_identical_and_reversed_rankings():
     order = ["a", "b", "c", "d"]
     assert ranking_stability([order, order, order]) == pytest.approx(1.0)
     assert ranking_stability([order, order[::-1]]) == pytest.approx(-1.0)
+
+
+def test_a_diagnosis_without_a_gap_ranks_nothing_and_is_left_out_of_the_tau():
+    order, swapped = list("abcdef"), list("abcdfe")
+    library = sorted(order, reverse=True)  # a no-gap diagnosis lists the library's order
+    found = [{"ranking": {"ranking": r}, "scored_rungs": ["motion"]} for r in (order, swapped)]
+    none = {"ranking": {"ranking": library}, "scored_rungs": []}
+    scores = stability_scores([found[0], none, found[1]])
+    assert scores["no_gap_diagnoses"] == 1
+    assert scores["kendall_tau"] == pytest.approx(ranking_stability([order, swapped]))
+    assert scores["kendall_tau_all"] == pytest.approx(
+        ranking_stability([order, library, swapped])
+    )
+    assert scores["kendall_tau_all"] < scores["kendall_tau"]
+    alone = stability_scores([found[0], none, none])
+    assert "kendall_tau" not in alone and alone["no_gap_diagnoses"] == 2
+    rows = [{"kind": "single", **scores}, {"kind": "single", **alone}]
+    summary = summarise(rows)
+    assert summary["kendall_tau_n"] == 1 and summary["kendall_tau_all_n"] == 2
 
 
 def test_weighted_tau_counts_swaps_at_the_top_more_than_at_the_bottom():
