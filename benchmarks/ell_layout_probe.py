@@ -22,6 +22,7 @@ import time
 import numpy as np
 from numba import njit
 
+from simulator.kernels.pcg import _matvec
 from simulator.threads import use_process_threads
 
 SIDE = 32
@@ -48,21 +49,6 @@ def stencil_columns(side: int = SIDE) -> np.ndarray:
 
 
 @njit(cache=True)
-def _product(values, cols, p, out):
-    """``out = A p`` for one instance, today's layout (as ``simulator.kernels.pcg``)."""
-    for i in range(values.shape[0]):
-        s0 = s1 = s2 = 0.0
-        for k in range(values.shape[1]):
-            j = cols[i, k]
-            p0, p1, p2 = p[j, 0], p[j, 1], p[j, 2]
-            blk = values[i, k]
-            s0 += blk[0, 0] * p0 + blk[0, 1] * p1 + blk[0, 2] * p2
-            s1 += blk[1, 0] * p0 + blk[1, 1] * p1 + blk[1, 2] * p2
-            s2 += blk[2, 0] * p0 + blk[2, 1] * p1 + blk[2, 2] * p2
-        out[i, 0], out[i, 1], out[i, 2] = s0, s1, s2
-
-
-@njit(cache=True)
 def _product_lanes(values, cols, p, out):
     """``out = A p`` for a group of 8 instances, lanes innermost: values (V, K, 3, 3, 8)."""
     acc = np.empty((3, 8), values.dtype)
@@ -80,10 +66,11 @@ def _product_lanes(values, cols, p, out):
 
 
 @njit(cache=True)
-def _solve_like(values, cols, p, out):
+def _solve_like(values, cols, free, p, out):
+    """Today's kernel, the PCG's own product (every vertex free)."""
     for b in range(values.shape[0]):
         for _ in range(PRODUCTS):
-            _product(values[b], cols, p[b], out[b])
+            _matvec(values[b], cols, free, p[b], out[b])
 
 
 @njit(cache=True)
@@ -125,7 +112,7 @@ def main(argv: list[str] | None = None) -> dict:
     lanes = (_to_lanes(values), cols, _to_lanes(p), _to_lanes(out))
     lanes32 = tuple(a if a is cols else a.astype(np.float32) for a in lanes)
     runs = {
-        "per_instance_f64": (_solve_like, (values, cols, p, out)),
+        "per_instance_f64": (_solve_like, (values, cols, np.ones(SIDE * SIDE), p, out)),
         "lanes_f64": (_solve_like_lanes, lanes),
         "lanes_f32": (_solve_like_lanes, lanes32),
     }
