@@ -25,6 +25,7 @@ from simulator.threads import use_process_threads
 
 from .candidates import Candidate, candidate_library, select_candidates
 from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
+from .detectability import candidate_detectability
 from .diagnosis import (
     OPEN_SET_MARGIN,
     agrees,
@@ -440,6 +441,11 @@ def run_diagnosis(
     residual = _residual_gap(ranking, plan, results, sets, real_features, budget, alpha, seed)
     probes = probe_transfer(nominal, real_features)
     timing["fit"] += time.perf_counter() - tick
+    tick = time.perf_counter()
+    detectability = candidate_detectability(
+        plan, sets, nominal, sets["S'"], _label, alpha=alpha, n_perm=budget.n_perm, seed=seed
+    )
+    timing["detectability"] = time.perf_counter() - tick
     coalitions = _coalition_plan(plan, results, budget.shapley_top)
     build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
     shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs, before)
@@ -484,6 +490,7 @@ def run_diagnosis(
         "shapley": shapley,
         "counterfactuals": swaps,
         "residual_stage": stage_of_residual(location, ranking["stage_scores"]),
+        "detectability": detectability,
         "probes": probes,
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
         "timing": timing,

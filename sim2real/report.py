@@ -52,11 +52,12 @@ def verdict(result: dict) -> str:
     ranking = result["ranking"]
     gaps = result["rungs"]
     if not loc["significant"]:
-        return (
+        return " ".join([
             "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
             f"combined: p {_fmt(loc.get('gap_p'), 2)}, alpha {loc['alpha']:g}): the simulated "
-            "and real clips are not distinguishable with this budget."
-        )
+            "and real clips are not distinguishable with this budget.",
+            *_detectability_sentences(result.get("detectability")),
+        ])  # fmt: skip
     rung_text = ", ".join(
         f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc["significant"]
     )
@@ -103,6 +104,8 @@ def verdict(result: dict) -> str:
             f"unexplained residual at stage {result['residual_stage']}."
         )
     parts += _residual_sentences(result.get("residual"))
+    if not ranking["explained"]:
+        parts += _detectability_sentences(result.get("detectability"))
     shrink = result.get("shrink")
     if shrink is None:
         parts.append("How far it shrinks after retraining was not measured in this run.")
@@ -132,6 +135,53 @@ def _residual_sentences(residual: dict | None) -> list[str]:
         return [f"{added}, a significant gap remains (p {_fmt(residual['gap_p'], 2)}) on "
                 + ", ".join(residual["significant"]) + "."]  # fmt: skip
     return [f"{added}, no significant gap remains (p {_fmt(residual['gap_p'], 2)})."]
+
+
+def _detectability_sentences(found: dict | None) -> list[str]:
+    """The verdict's words on what the test could not have seen (empty without the analysis)."""
+    if not found:
+        return []
+    blind = [n for n, e in found.items() if e["verdict"] == "undetected"]
+    inert = [n for n, e in found.items() if e["verdict"] == "inert"]
+    parts = []
+    if blind:
+        parts.append("Tested against a fresh nominal simulation at S's size, these candidates "
+                     "show no gap at any strength tried, so this data cannot rule them out: "
+                     + ", ".join(blind) + ".")  # fmt: skip
+    if inert:
+        parts.append("Inert in this scene (they change no feature at any strength tried): "
+                     + ", ".join(inert) + ".")  # fmt: skip
+    return parts
+
+
+def _detectability_lines(found: dict | None) -> list[str]:
+    """Section 2's table of which candidate strengths the gap test picks up, sim against sim."""
+    if not found:
+        return []
+
+    def listed(entry, keep):
+        cells = [f"{_fmt(v)} (p {_fmt(p, 2)})"
+                 for v, p, d, i in zip(entry["strengths"], entry["p"], entry["detected"],
+                                       entry["inert"], strict=True)
+                 if keep(d, i)]  # fmt: skip
+        return ", ".join(cells) or "–"
+
+    rows = [[name, e["stage"], e["verdict"], listed(e, lambda d, i: d),
+             listed(e, lambda d, i: not d and not i), listed(e, lambda d, i: i)]
+            for name, e in found.items()]  # fmt: skip
+    return [
+        "### What the gap test can see",
+        "",
+        "Each candidate set S_e tested against S' (the nominal scene, other simulation seeds, "
+        "S's size) with the gap test above, as if S_e were the real set. A strength it does "
+        "not pick up is one this diagnosis could not tell from the nominal simulation; inert: "
+        "S_e's features equal S's bit for bit.",
+        "",
+        markdown_table(
+            ["candidate", "stage", "verdict", "picked up", "not picked up", "inert"], rows
+        ),
+        "",
+    ]
 
 
 def _swap_sentences(result: dict) -> list[str]:
@@ -414,6 +464,7 @@ def _markdown(result: dict, figures: list[str]) -> str:
             _candidate_rows(result),
         ),
         *_shapley_lines(result.get("shapley")),
+        *_detectability_lines(result.get("detectability")),
         "Best score per stage: "
         + ", ".join(
             f"{s} {('–' if v is None else f'{100 * v:.0f} %')}"

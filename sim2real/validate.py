@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .candidates import candidate_library
+from .detectability import detectable_at
 from .pipeline import Budget, load_run, run_diagnosis
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
@@ -60,6 +61,12 @@ def score_set(result: dict, answer: dict) -> dict:
     if answer["kind"] == "open":
         row["false_attribution"] = bool(ranking["explained"])
         return row
+    found = result.get("detectability")
+    if found is not None:  # reports written before the analysis existed have none
+        row["truth_detectable"] = any(
+            detectable_at(found[e["name"]], e["strength"])
+            for e in answer["effects"] if e["library"] and e["name"] in found
+        )  # fmt: skip
     ranked = bool(result.get("scored_rungs", True))  # no significant gap: no ranking at all
     row["top1"] = bool(ranking["explained"] and ranking["top"] in truth)
     row["top3"] = ranked and bool(set(order[:3]) & set(truth))
@@ -136,6 +143,36 @@ def summarise(rows: list[dict]) -> dict:
     out["top1_detected"], out["top1_detected_n"] = (
         (float(np.mean([r["top1"] for r in found])), len(found)) if found else (None, 0)
     )
+    out.update(_by_detectability(rows))
+    return out
+
+
+def _by_detectability(rows: list[dict]) -> dict:
+    """Rates split by whether the diagnosis's own sim-vs-sim test could see the withheld effect.
+
+    ``truth_detectable`` (:func:`score_set`) separates a miss of the test's power (the effect
+    at its sealed strength shows no gap even against a clean simulation) from a miss of the
+    identification. ``gap_found_when_undetectable`` and ``gap_missed_when_detectable`` check
+    that analysis against what the diagnosis then found on the sealed set.
+    """
+    known = [r for r in rows if "truth_detectable" in r]
+    seen = [r for r in known if r["truth_detectable"]]
+    blind = [r for r in known if not r["truth_detectable"]]
+
+    def mean(values):
+        values = [v for v in values if v is not None]
+        return (float(np.mean(values)) if values else None), len(values)
+
+    out = {}
+    out["truth_detectable"], out["truth_detectable_n"] = mean(r["truth_detectable"] for r in known)
+    for key in ("stage_correct", "top1", "top3"):
+        out[f"{key}_detectable"], out[f"{key}_detectable_n"] = mean(r.get(key) for r in seen)
+    out["gap_found_when_undetectable"], out["gap_found_when_undetectable_n"] = mean(
+        r["detected"] for r in blind
+    )
+    out["gap_missed_when_detectable"], out["gap_missed_when_detectable_n"] = mean(
+        not r["detected"] for r in seen
+    )
     return out
 
 
@@ -190,6 +227,7 @@ def _table(summary: dict, rows: list[dict]) -> str:
         f"{summary['detected_n']} |",
         f"| effect top-1 where a gap was found | – | {pct(summary['top1_detected'])} | "
         f"{summary['top1_detected_n']} |",
+        *_detectability_rows(summary, pct),
         "", "| seed | kind | withheld | diagnosed | stage | top-3 | gap closed |",
         "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
@@ -202,6 +240,20 @@ def _table(summary: dict, rows: list[dict]) -> str:
             f"{'–' if closed is None else f'{100 * closed:.0f} %'} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _detectability_rows(summary: dict, pct) -> list[str]:
+    if not summary.get("truth_detectable_n"):
+        return []
+    rows = [
+        ("withheld effect visible to the sim-vs-sim test", "truth_detectable"),
+        ("stage correct, visible effects", "stage_correct_detectable"),
+        ("effect top-1, visible effects", "top1_detectable"),
+        ("effect top-3, visible effects", "top3_detectable"),
+        ("gap found although invisible to it", "gap_found_when_undetectable"),
+        ("no gap found although visible to it", "gap_missed_when_detectable"),
+    ]
+    return [f"| {text} | – | {pct(summary[key])} | {summary[f'{key}_n']} |" for text, key in rows]
 
 
 def set_plan(kinds: str | None, names: list[str], first_seed: int) -> list[tuple] | None:

@@ -200,6 +200,11 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert residual["candidate"] == "visual.sensor_noise"
     assert residual["strength"] in noise["strengths"]
     assert set(residual["p_gap"]) == set(result["rungs"]) and 0 < residual["gap_p"] <= 1
+    seen = result["detectability"]  # every built strength tested against S'
+    assert set(seen) == set(CANDIDATES)
+    assert seen["visual.sensor_noise"]["strengths"] == noise["strengths"]
+    assert seen["visual.sensor_noise"]["detected"][-1]  # the strongest noise shows, sim vs sim
+    assert "What the gap test can see" in (out / "report.md").read_text()
     saved = json.loads((out / "report.json").read_text())
     assert saved["ranking"]["top"] == "visual.sensor_noise"
     assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
