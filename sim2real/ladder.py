@@ -58,6 +58,19 @@ class LadderFeatures:
         atomic_write_bytes(path, buffer.getvalue())
 
     @staticmethod
+    def pooled(*sets: LadderFeatures) -> LadderFeatures:
+        """The rows of ``sets`` as one set (several draws of one domain, for more power).
+
+        Group ids become ``<index>:<id>``, so two draws' simulations never share a group.
+        """
+        groups = [np.char.add(f"{i}:", s.groups.astype(str)) for i, s in enumerate(sets)]
+        return LadderFeatures(
+            rungs={n: np.concatenate([s.rungs[n] for s in sets]) for n in sets[0].rungs},
+            groups=np.concatenate(groups),
+            **{k: np.concatenate([getattr(s, k) for s in sets]) for k in _LABELS[1:]},
+        )
+
+    @staticmethod
     def load(path: Path) -> LadderFeatures:
         """Read a file written by :meth:`save`."""
         with np.load(path, allow_pickle=False) as data:

@@ -50,7 +50,7 @@ def verdict(result: dict) -> str:
     """One paragraph answering the three questions from the result JSON."""
     loc = result["location"]
     ranking = result["ranking"]
-    gaps = result["rungs"]
+    gaps = result.get("detection_rungs") or result["rungs"]  # what the gap test compared
     if not loc["significant"]:
         return " ".join([
             "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
@@ -302,12 +302,14 @@ def _shrink_section(shrink: dict | None) -> list[str]:
 
 def _rung_rows(result: dict) -> list[list]:
     rows = []
+    pooled = result.get("detection_rungs") or {}
     for name, gap in result["rungs"].items():
         probe = result["probes"].get(name, {})
         rows.append([
             name, _fmt(gap["mmd2"]), _ci(gap["mmd2_ci"]), _fmt(gap["floor_mmd2"]),
             _fmt(gap["auc"], 2), _ci(gap["auc_ci"]), _fmt(gap["floor_auc"], 2),
             _fmt(gap["p_value"], 2), _fmt(gap.get("p_c2st"), 2),
+            _fmt(pooled.get(name, {}).get("p_gap"), 2),
             "yes" if name in result["location"]["significant"] else "",
             "yes" if name in result["location"].get("bonferroni", ()) else "",
             _fmt(probe.get("stiffness_spearman"), 2), _fmt(probe.get("density_spearman"), 2),
@@ -317,7 +319,7 @@ def _rung_rows(result: dict) -> list[list]:
 
 _RUNG_HEADER = [
     "rung", "MMD²", "95 % CI", "floor", "AUC", "95 % CI", "floor AUC", "p (MMD²)", "p (C2ST)",
-    "shows the gap", "on its own",
+    "p, S + S' vs R", "shows the gap", "on its own",
     "probe ρ stiffness", "probe ρ density",
 ]  # fmt: skip
 
@@ -431,12 +433,15 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "## 1. Where the gap lies",
         "",
         markdown_table(_RUNG_HEADER, _rung_rows(result)),
-        "MMD² on features standardised with S and R pooled; floors are the values expected "
-        "from group sampling alone (S vs S' split by simulation, R vs R' by video); p (MMD²) from "
-        "group permutations, p (C2ST) a one-sided Mann-Whitney test of the classifier's "
-        "out-of-fold scores per group. The gap test combines all of them (harmonic mean "
-        "p-value); given a gap, a rung shows it when twice its smaller p is below alpha, and "
-        "stands on its own when that passes the Bonferroni level over the rungs; probes: ridge "
+        "S against R, the size every candidate set S_e is compared at: MMD² on features "
+        "standardised with S and R pooled; floors are the values expected from group sampling "
+        "alone (S vs S' split by simulation, R vs R' by video); p (MMD²) from group "
+        "permutations, p (C2ST) a one-sided Mann-Whitney test of the classifier's out-of-fold "
+        "scores per group. The gap test compares R with S and S' pooled (twice the "
+        "simulations, so more power) and combines both p-values of every rung (harmonic mean "
+        "p-value); given a gap, a rung shows it when its p, S + S' vs R (twice its smaller p) "
+        "is below alpha, and stands on its own when that passes the Bonferroni level over the "
+        "rungs; probes: ridge "
         "of the class position trained on S, Spearman ρ of the per-video prediction with the "
         "measured values on R.",
         "",

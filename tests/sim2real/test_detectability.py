@@ -43,6 +43,15 @@ def test_a_set_equal_to_the_nominal_one_is_inert_and_any_change_is_not():
     assert not is_inert(nominal, changed)
 
 
+def test_pooled_draws_keep_every_row_and_never_share_a_group():
+    a, b = _domain(0), _domain(1)
+    both = LadderFeatures.pooled(a, b)
+    assert len(both) == len(a) + len(b)
+    assert np.array_equal(both.rungs["pixel"], np.concatenate([a.rungs["pixel"], b.rungs["pixel"]]))
+    assert len(set(both.groups)) == len(set(a.groups)) + len(set(b.groups))  # same ids in a, b
+    assert np.array_equal(both.stiffness, np.concatenate([a.stiffness, b.stiffness]))
+
+
 def test_the_detection_p_holds_its_level_and_picks_up_a_clear_shift():
     null = _domain(100)
     p_null = [detection_p(null, _domain(s), n_perm=99, seed=s) for s in range(12)]

@@ -200,6 +200,10 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert residual["candidate"] == "visual.sensor_noise"
     assert residual["strength"] in noise["strengths"]
     assert set(residual["p_gap"]) == set(result["rungs"]) and 0 < residual["gap_p"] <= 1
+    # the gap test compared R with S and S' pooled; candidates are scored against S alone
+    pooled, alone = result["detection_rungs"]["pixel"], result["rungs"]["pixel"]
+    assert pooled["n_x"] == 2 * alone["n_x"] and pooled["groups_x"] == 2 * alone["groups_x"]
+    assert result["location"]["gap_p"] < 0.05
     seen = result["detectability"]  # every built strength tested against S'
     assert set(seen) == set(CANDIDATES)
     assert seen["visual.sensor_noise"]["strengths"] == noise["strengths"]
