@@ -56,7 +56,7 @@ def verdict(result: dict) -> str:
             "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
             f"combined: p {_fmt(loc.get('gap_p'), 2)}, alpha {loc['alpha']:g}): the simulated "
             "and real clips are not distinguishable with this budget.",
-            *_detectability_sentences(result.get("detectability")),
+            *_detectability_sentences(result),
         ])  # fmt: skip
     rung_text = ", ".join(
         f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc["significant"]
@@ -105,7 +105,7 @@ def verdict(result: dict) -> str:
         )
     parts += _residual_sentences(result.get("residual"))
     if not ranking["explained"]:
-        parts += _detectability_sentences(result.get("detectability"))
+        parts += _detectability_sentences(result)
     shrink = result.get("shrink")
     if shrink is None:
         parts.append("How far it shrinks after retraining was not measured in this run.")
@@ -137,17 +137,21 @@ def _residual_sentences(residual: dict | None) -> list[str]:
     return [f"{added}, no significant gap remains (p {_fmt(residual['gap_p'], 2)})."]
 
 
-def _detectability_sentences(found: dict | None) -> list[str]:
+def _detectability_sentences(result: dict) -> list[str]:
     """The verdict's words on what the test could not have seen (empty without the analysis)."""
+    found = result.get("detectability")
     if not found:
         return []
+    sims = result["inputs"]["sim_groups"]
     blind = [n for n, e in found.items() if e["verdict"] == "undetected"]
     inert = [n for n, e in found.items() if e["verdict"] == "inert"]
     parts = []
     if blind:
-        parts.append("Tested against a fresh nominal simulation at S's size, these candidates "
-                     "show no gap at any strength tried, so this data cannot rule them out: "
-                     + ", ".join(blind) + ".")  # fmt: skip
+        parts.append(f"Tested against a fresh nominal draw, {sims} simulations against {sims} "
+                     f"(the gap test itself pools {2 * sims} against the real videos and sees "
+                     "more), "
+                     "these candidates show no gap at any strength tried; they are the hardest "
+                     "to rule out: " + ", ".join(blind) + ".")  # fmt: skip
     if inert:
         parts.append("Inert in this scene (they change no feature at any strength tried): "
                      + ", ".join(inert) + ".")  # fmt: skip
@@ -173,9 +177,10 @@ def _detectability_lines(found: dict | None) -> list[str]:
         "### What the gap test can see",
         "",
         "Each candidate set S_e tested against S' (the nominal scene, other simulation seeds, "
-        "S's size) with the gap test above, as if S_e were the real set. A strength it does "
-        "not pick up is one this diagnosis could not tell from the nominal simulation; inert: "
-        "S_e's features equal S's bit for bit.",
+        "S's size) with the gap test above, as if S_e were the real set. The gap test itself "
+        "compares S and S' pooled with the real videos, more rows on both sides, so it sees "
+        "more than this: a strength not picked up here is hard to see, not invisible. Inert: "
+        "S_e's features equal S's bit for bit, which no footage can reveal.",
         "",
         markdown_table(
             ["candidate", "stage", "verdict", "picked up", "not picked up", "inert"], rows

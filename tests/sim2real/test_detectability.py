@@ -115,3 +115,25 @@ def test_validation_splits_misses_of_power_from_misses_of_identification(gap, vi
     else:
         assert summary["top1_detectable"] is None and summary["top1_detectable_n"] == 0
         assert summary["gap_found_when_undetectable"] == 0.0
+
+
+def test_a_no_gap_verdict_names_the_candidates_it_could_not_rule_out():
+    from sim2real.report import verdict
+
+    entry = {"strengths": [1.0], "p": [0.5], "inert": [False], "detected": [False]}
+    result = {
+        "location": {"significant": [], "gap_p": 0.4, "alpha": 0.05},
+        "ranking": {}, "rungs": {}, "inputs": {"sim_groups": 27},
+        "detectability": {
+            "visual.specular": {**entry, "verdict": "undetected"},
+            "physics.self_collision": {**entry, "inert": [True], "p": [1.0], "verdict": "inert"},
+            "visual.sensor_noise": {**entry, "detected": [True], "verdict": "detected"},
+        },
+    }  # fmt: skip
+    text = verdict(result)
+    assert text.startswith("No gap beyond the within-domain noise floor")
+    assert "27 simulations against 27" in text and "pools 54" in text
+    assert "hardest to rule out: visual.specular." in text
+    assert "Inert in this scene (they change no feature at any strength tried): " \
+        "physics.self_collision." in text
+    assert "sensor_noise" not in text
