@@ -28,7 +28,7 @@ from .detectability import detectable_at
 from .pipeline import Budget, load_run, run_diagnosis
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
-__all__ = ["ranking_stability", "score_set", "set_plan", "stability_scores", "summarise"]
+__all__ = ["ranking_stability", "ranks", "score_set", "set_plan", "stability_scores", "summarise"]
 
 TARGETS = {
     "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
@@ -43,6 +43,19 @@ def _predicted_stages(result: dict) -> set[str]:
         return {result["candidates"][ranking["top"]]["stage"]}
     text = result["residual_stage"]
     return {s for s in ("scene", "physics", "appearance", "camera") if s in text}
+
+
+def ranks(result: dict) -> bool:
+    """Whether a diagnosis ranks its candidates at all.
+
+    Not without a significant gap (no scored rungs), nor when every candidate scores 0 (S's
+    own classifier gap at or below its floor on every scored rung, possible since the gap
+    test pools S and S'): the order is then the library's, and a withheld effect early in
+    the library would count as a top-3 hit by chance.
+    """
+    return bool(result.get("scored_rungs", True)) and any(
+        c["best_score"] != 0 for c in result["candidates"].values()
+    )
 
 
 def score_set(result: dict, answer: dict) -> dict:
@@ -67,7 +80,7 @@ def score_set(result: dict, answer: dict) -> dict:
             detectable_at(found[e["name"]], e["strength"])
             for e in answer["effects"] if e["library"] and e["name"] in found
         )  # fmt: skip
-    ranked = bool(result.get("scored_rungs", True))  # no significant gap: no ranking at all
+    ranked = ranks(result)
     row["top1"] = bool(ranking["explained"] and ranking["top"] in truth)
     row["top3"] = ranked and bool(set(order[:3]) & set(truth))
     closed = [result["candidates"][n]["best_score"] for n in truth if n in result["candidates"]]
@@ -103,13 +116,13 @@ def ranking_stability(rankings: list[list[str]], *, weighted: bool = False) -> f
 def stability_scores(results: list[dict]) -> dict:
     """Taus of one sealed set's diagnoses under several simulation seeds.
 
-    ``kendall_tau`` and ``weighted_tau`` compare the rankings of the diagnoses that found a
-    significant gap. A diagnosis that found none ranks nothing: every candidate scores 0 and
-    its order is the library's, so there is no ranking to compare, and it is counted in
+    ``kendall_tau`` and ``weighted_tau`` compare the rankings of the diagnoses that rank
+    (:func:`ranks`). One that found no gap ranks nothing: every candidate scores 0 and its
+    order is the library's, so there is no ranking to compare, and it is counted in
     ``no_gap_diagnoses`` instead. ``kendall_tau_all`` keeps it, in that order.
     """
     every = [r["ranking"]["ranking"] for r in results]
-    ranked = [r["ranking"]["ranking"] for r in results if r.get("scored_rungs")]
+    ranked = [r["ranking"]["ranking"] for r in results if ranks(r)]
     out = {
         "kendall_tau_all": ranking_stability(every),
         "no_gap_diagnoses": len(every) - len(ranked),

@@ -43,6 +43,17 @@ def test_without_a_significant_gap_nothing_counts_as_ranked():
     assert not row["top1"] and not row["top3"]
 
 
+def test_a_gap_whose_candidates_all_score_zero_ranks_nothing():
+    # S's own classifier gap at its floor: every score 0, the order is the library's
+    result = _result("visual.sensor_noise", explained=False) | {"scored_rungs": ["pixel"]}
+    for entry in result["candidates"].values():
+        entry["best_score"] = 0.0
+    row = score_set(result, _answer("visual.sensor_noise"))
+    assert not row["top3"] and row["detected"]
+    tied = stability_scores([result, result, _result("visual.sensor_noise")])
+    assert tied["no_gap_diagnoses"] == 2 and "kendall_tau" not in tied
+
+
 def test_a_wrong_top_in_the_right_stage_counts_as_stage_and_top3_only():
     result = _result("visual.white_balance",
                      ranking=["visual.white_balance", "visual.sensor_noise", "visual.shadows",
@@ -76,8 +87,10 @@ def test_kendall_tau_of_identical_and_reversed_rankings():
 def test_a_diagnosis_without_a_gap_ranks_nothing_and_is_left_out_of_the_tau():
     order, swapped = list("abcdef"), list("abcdfe")
     library = sorted(order, reverse=True)  # a no-gap diagnosis lists the library's order
-    found = [{"ranking": {"ranking": r}, "scored_rungs": ["motion"]} for r in (order, swapped)]
-    none = {"ranking": {"ranking": library}, "scored_rungs": []}
+    scored = {n: {"best_score": 0.1 * i} for i, n in enumerate(order)}
+    found = [{"ranking": {"ranking": r}, "scored_rungs": ["motion"], "candidates": scored}
+             for r in (order, swapped)]  # fmt: skip
+    none = {"ranking": {"ranking": library}, "scored_rungs": [], "candidates": scored}
     scores = stability_scores([found[0], none, found[1]])
     assert scores["no_gap_diagnoses"] == 1
     assert scores["kendall_tau"] == pytest.approx(ranking_stability([order, swapped]))
