@@ -12,6 +12,14 @@ parallelism comes from processes (joblib workers, Hydra launchers), one thread e
 Entry points call :func:`use_process_threads` once; library code that needs a fixed count for
 a block (e.g. to fix the bytes a worker writes) uses :func:`torch_threads`.
 
+NumPy and SciPy each load their own OpenBLAS, which reads ``OPENBLAS_NUM_THREADS`` only when
+it loads: setting the variable cannot reach a library already in memory, so
+:func:`use_process_threads` also sets the count of every OpenBLAS loaded in the process
+(:func:`limit_openblas_threads`). The same spinning hits it: beside a busy 2-thread matrix
+product, 20 logistic fits on (300, 512) features (the diagnosis's domain classifier) took
+4.9 s with OpenBLAS's default 2 threads and 0.12 s with one; a sealed set's diagnosis took
+11 min instead of about 1 beside two other validation processes (2026-11-26).
+
 Where a process does take several threads (``--threads 2`` for a batched run, whose compiled
 kernels spread the instances over numba's OpenMP threads), ``import simulator`` sets
 ``OMP_WAIT_POLICY=PASSIVE`` unless the environment already chose: idle OpenMP threads sleep
@@ -28,6 +36,7 @@ does not pay.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 from collections.abc import Iterator
 
@@ -37,6 +46,7 @@ __all__ = [
     "SIM_THREADS",
     "THREAD_ENV_VARS",
     "check_threads",
+    "limit_openblas_threads",
     "torch_threads",
     "use_process_threads",
 ]
@@ -57,8 +67,41 @@ def check_threads(value, name: str = "threads") -> int | None:
     return value
 
 
+_OPENBLAS_SETTERS = (
+    "openblas_set_num_threads", "openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_",
+)  # fmt: skip
+"""The setter's name in a plain OpenBLAS, an ILP64 one, and NumPy's and SciPy's wheels."""
+
+
+def _loaded_openblas() -> list[str]:
+    """Paths of the OpenBLAS libraries mapped into this process (Linux; else none)."""
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
+    except OSError:
+        return []
+    return sorted(p for p in paths if p.startswith("/"))
+
+
+def limit_openblas_threads(threads: int) -> int:
+    """Set the thread count of every OpenBLAS loaded in this process; returns how many."""
+    count = 0
+    for path in _loaded_openblas():
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:
+            continue
+        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)),
+                      None)  # fmt: skip
+        if setter is not None:
+            setter(ctypes.c_int(threads))
+            count += 1
+    return count
+
+
 def use_process_threads(threads: int | None = SIM_THREADS, *, name: str = "threads") -> None:
-    """Set this process's torch intra-op threads and its children's thread-pool variables.
+    """Set this process's torch and OpenBLAS threads and its children's thread-pool variables.
 
     Args:
         threads: Threads per process; ``None`` leaves torch's default (one per core).
@@ -70,6 +113,7 @@ def use_process_threads(threads: int | None = SIM_THREADS, *, name: str = "threa
     torch.set_num_threads(threads)
     for var in THREAD_ENV_VARS:
         os.environ[var] = str(threads)
+    limit_openblas_threads(threads)
 
 
 @contextlib.contextmanager

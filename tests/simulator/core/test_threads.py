@@ -52,3 +52,35 @@ def test_importing_the_simulator_makes_openmp_threads_sleep_unless_the_user_chos
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout  # fmt: skip
     assert out.strip() == expected
+
+
+def _openblas_thread_counts() -> list[int]:
+    import ctypes
+
+    from simulator.threads import _loaded_openblas
+
+    counts = []
+    for path in _loaded_openblas():
+        library = ctypes.CDLL(path)
+        names = [n.replace("set", "get") for n in
+                 ("openblas_set_num_threads", "openblas_set_num_threads64_",
+                  "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_")]
+        getter = next((getattr(library, n) for n in names if hasattr(library, n)), None)
+        if getter is not None:
+            counts.append(getter())
+    return counts
+
+
+def test_openblas_already_loaded_by_numpy_and_scipy_gets_the_thread_count():
+    import scipy.linalg  # noqa: F401  (loads SciPy's own OpenBLAS beside NumPy's)
+
+    from simulator.threads import limit_openblas_threads
+
+    before = _openblas_thread_counts()
+    if not before:
+        pytest.skip("no OpenBLAS loaded in this process (NumPy built against another BLAS)")
+    try:
+        assert limit_openblas_threads(1) == len(before)
+        assert _openblas_thread_counts() == [1] * len(before)
+    finally:
+        limit_openblas_threads(max(before))
