@@ -4,12 +4,12 @@
 at the set sizes in use. So every candidate set S_e the diagnosis built is tested against S',
 the nominal scene under independent simulation seeds and of S's size, with the diagnosis's own
 gap test (:func:`sim2real.diagnosis.localise`: the harmonic mean of every rung's kernel and
-classifier p-values), as if S_e were the real set. A strength that this test does not pick up
-is one the diagnosis could not have told from the nominal simulation either: the answer "no
-gap" is then consistent with the effect being present at that strength.
+classifier p-values), as if S_e were the real set. A strength this test does not pick up is
+hard to tell from the nominal simulation, so "no gap" does not rule it out.
 
-It is an estimate, not a bound: the real set usually has more videos than S has simulations
-(more power), and nuisances S' lacks (less power).
+It is conservative as an estimate of what the diagnosis sees: the gap test itself compares the
+real set with S and S' pooled, more rows on both sides (in blind round 7, 5 of the 9 withheld
+effects not picked up here still left a gap), though real footage also has nuisances S' lacks.
 
 A candidate set whose features equal S's on every rung is *inert*: S_e shares S's simulation
 seeds and render draws, so an effect that changes nothing leaves every feature bit for bit
@@ -72,8 +72,7 @@ def candidate_detectability(
 
     Returns:
         ``{name: {"stage", "strengths", "log_scale", "p", "detected", "inert", "verdict"}}``,
-        lists in
-        the plan's strength order; verdict ``inert`` (every strength inert), ``undetected``
+        lists in the plan's strength order; verdict ``inert`` (every strength inert), ``undetected``
         (none picked up), ``detected`` (all picked up) or ``partly``. An inert strength is
         not tested (p 1).
     """

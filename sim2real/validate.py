@@ -161,10 +161,10 @@ def summarise(rows: list[dict]) -> dict:
 
 
 def _by_detectability(rows: list[dict]) -> dict:
-    """Rates split by whether the diagnosis's own sim-vs-sim test could see the withheld effect.
+    """Rates split by whether the diagnosis's own sim-vs-sim test picks up the withheld effect.
 
     ``truth_detectable`` (:func:`score_set`) separates a miss of the test's power (the effect
-    at its sealed strength shows no gap even against a clean simulation) from a miss of the
+    at its sealed strength shows no gap even against a clean nominal draw) from a miss of the
     identification. ``gap_found_when_undetectable`` and ``gap_missed_when_detectable`` check
     that analysis against what the diagnosis then found on the sealed set.
     """
@@ -259,12 +259,12 @@ def _detectability_rows(summary: dict, pct) -> list[str]:
     if not summary.get("truth_detectable_n"):
         return []
     rows = [
-        ("withheld effect visible to the sim-vs-sim test", "truth_detectable"),
-        ("stage correct, visible effects", "stage_correct_detectable"),
-        ("effect top-1, visible effects", "top1_detectable"),
-        ("effect top-3, visible effects", "top3_detectable"),
-        ("gap found although invisible to it", "gap_found_when_undetectable"),
-        ("no gap found although visible to it", "gap_missed_when_detectable"),
+        ("withheld effect picked up by the sim-vs-sim test", "truth_detectable"),
+        ("stage correct, where picked up", "stage_correct_detectable"),
+        ("effect top-1, where picked up", "top1_detectable"),
+        ("effect top-3, where picked up", "top3_detectable"),
+        ("gap found although not picked up", "gap_found_when_undetectable"),
+        ("no gap found although picked up", "gap_missed_when_detectable"),
     ]
     return [f"| {text} | – | {pct(summary[key])} | {summary[f'{key}_n']} |" for text, key in rows]
 
