@@ -105,11 +105,11 @@ def ranking_stability(rankings: list[list[str]], *, weighted: bool = False) -> f
     from scipy.stats import kendalltau, weightedtau
 
     names = sorted(rankings[0])
-    ranks = [np.array([r.index(n) for n in names]) for r in rankings]
+    places = [np.array([r.index(n) for n in names]) for r in rankings]
     if weighted:  # weightedtau ranks by decreasing value: give the top the largest one
-        taus = [weightedtau(-a, -b)[0] for i, a in enumerate(ranks) for b in ranks[i + 1 :]]
+        taus = [weightedtau(-a, -b)[0] for i, a in enumerate(places) for b in places[i + 1 :]]
     else:
-        taus = [kendalltau(a, b)[0] for i, a in enumerate(ranks) for b in ranks[i + 1 :]]
+        taus = [kendalltau(a, b)[0] for i, a in enumerate(places) for b in places[i + 1 :]]
     return float(np.mean(taus))
 
 
@@ -137,9 +137,7 @@ def summarise(rows: list[dict]) -> dict:
     """Rates over the scored sets (``None`` where no set applies)."""
 
     def rate(key, kinds=None):
-        values = [r[key] for r in rows if key in r and r[key] is not None
-                  and (kinds is None or r["kind"] in kinds)]  # fmt: skip
-        return (float(np.mean(values)) if values else None), len(values)
+        return _mean(r.get(key) for r in rows if kinds is None or r["kind"] in kinds)
 
     out = {}
     for key in ("stage_correct", "top1", "top3", "strength_in_interval"):
@@ -171,22 +169,23 @@ def _by_detectability(rows: list[dict]) -> dict:
     known = [r for r in rows if "truth_detectable" in r]
     seen = [r for r in known if r["truth_detectable"]]
     blind = [r for r in known if not r["truth_detectable"]]
-
-    def mean(values):
-        values = [v for v in values if v is not None]
-        return (float(np.mean(values)) if values else None), len(values)
-
     out = {}
-    out["truth_detectable"], out["truth_detectable_n"] = mean(r["truth_detectable"] for r in known)
+    out["truth_detectable"], out["truth_detectable_n"] = _mean(r["truth_detectable"] for r in known)
     for key in ("stage_correct", "top1", "top3"):
-        out[f"{key}_detectable"], out[f"{key}_detectable_n"] = mean(r.get(key) for r in seen)
-    out["gap_found_when_undetectable"], out["gap_found_when_undetectable_n"] = mean(
+        out[f"{key}_detectable"], out[f"{key}_detectable_n"] = _mean(r.get(key) for r in seen)
+    out["gap_found_when_undetectable"], out["gap_found_when_undetectable_n"] = _mean(
         r["detected"] for r in blind
     )
-    out["gap_missed_when_detectable"], out["gap_missed_when_detectable_n"] = mean(
+    out["gap_missed_when_detectable"], out["gap_missed_when_detectable_n"] = _mean(
         not r["detected"] for r in seen
     )
     return out
+
+
+def _mean(values) -> tuple[float | None, int]:
+    """(mean, count) of the values that are not None; (None, 0) when there are none."""
+    values = [v for v in values if v is not None]
+    return (float(np.mean(values)) if values else None), len(values)
 
 
 def _confusion_png(path: Path, rows: list[dict]) -> None:

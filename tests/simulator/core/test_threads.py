@@ -57,14 +57,12 @@ def test_importing_the_simulator_makes_openmp_threads_sleep_unless_the_user_chos
 def _openblas_thread_counts() -> list[int]:
     import ctypes
 
-    from simulator.threads import _loaded_openblas
+    from simulator.threads import _OPENBLAS_SETTERS, _loaded_openblas
 
+    names = [n.replace("_set_", "_get_") for n in _OPENBLAS_SETTERS]
     counts = []
     for path in _loaded_openblas():
         library = ctypes.CDLL(path)
-        names = [n.replace("set", "get") for n in
-                 ("openblas_set_num_threads", "openblas_set_num_threads64_",
-                  "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_")]
         getter = next((getattr(library, n) for n in names if hasattr(library, n)), None)
         if getter is not None:
             counts.append(getter())
