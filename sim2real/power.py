@@ -1,0 +1,168 @@
+"""How the gap test's power grows with more nominal simulations, on diagnosed sets.
+
+``python -m sim2real.power REPORT.json [REPORT.json ...] --draws 2,4,6 [--answers DIR]``
+re-tests stored diagnoses: for each report it pools k nominal draws (S, S' and further draws
+of the same nominal scene under other simulation seeds, built through the diagnosis's own
+cache) against the report's real clips, and gives the gap test's p-value
+(:func:`sim2real.diagnosis.localise`) and the rungs whose own tests pass at ``alpha``, for
+each k. It asks whether a set the diagnosis found no gap in holds a gap that more
+simulations would find, and on which rungs: the answer separates "too few simulations"
+from "too few real videos". With ``--answers`` (a validation's answer folder) each row also
+names the withheld effect; the answers are read only to label the table.
+
+Writes ``power.json`` and ``power.md`` into ``--out``; the last printed line is the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+from datasets.spec import DatasetSpec
+
+from .diagnosis import PIXEL_RUNGS, localise, rung_gaps
+from .domains import real_clips
+from .ladder import LadderFeatures, file_digest
+from .pipeline import NULL_SEED_OFFSET, SetContext, SetJob, _run_jobs, real_ladder
+
+__all__ = ["draw_spec", "pooled_detection"]
+
+
+def draw_spec(spec: DatasetSpec, draw: int) -> DatasetSpec:
+    """Nominal draw ``draw`` of the diagnosis's S: 0 is S, 1 is S', then further seeds."""
+    return dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET * draw)
+
+
+def pooled_detection(
+    draws: list[LadderFeatures],
+    real: LadderFeatures,
+    counts: list[int],
+    *,
+    alpha: float = 0.05,
+    n_perm: int = 200,
+    seed: int = 0,
+) -> list[dict]:
+    """The gap test of the first k draws pooled against ``real``, for each k in ``counts``.
+
+    Per k: the combined p-value ``gap_p`` and, per rung, the kernel and classifier p-values;
+    ``rungs`` lists the rungs where either lies below ``alpha`` (no floors: this asks what
+    the test can tell apart, not how large the gap is).
+    """
+    out = []
+    for count in counts:
+        if not 1 <= count <= len(draws):
+            raise ValueError(f"counts: {count} is not in 1..{len(draws)} (the draws given)")
+        pooled = LadderFeatures.pooled(*draws[:count])
+        gaps = rung_gaps(pooled, real, n_perm=n_perm, n_boot=1, n_floor=0, seed=seed)
+        location = localise(gaps, alpha=alpha)
+        rungs = [n for n, g in gaps.items() if min(g.p_value, g.p_c2st) < alpha]
+        out.append({
+            "draws": count, "sims": len(set(pooled.groups.tolist())),
+            "gap_p": location["gap_p"], "detected": location["gap_p"] < alpha,
+            "rungs": rungs, "pixel_or_motion": [n for n in rungs if n in PIXEL_RUNGS],
+            "p": {n: [g.p_value, g.p_c2st] for n, g in gaps.items()},
+        })  # fmt: skip
+    return out
+
+
+def _context(inputs: dict) -> SetContext:
+    return SetContext(
+        box=tuple(inputs["box"]), checkpoint=inputs["checkpoint"],
+        checkpoint_digest=file_digest(Path(inputs["checkpoint"])),
+        mesh_cache=inputs["mesh_cache"], cache_dir=inputs["cache_dir"],
+        clip_len=inputs["clip_len"], clip_stride=inputs["clip_stride"], device="cpu",
+    )  # fmt: skip
+
+
+def _study(report: dict, counts: list[int], n_jobs: int, alpha: float, progress: bool) -> list:
+    inputs = report["inputs"]
+    context = _context(inputs)
+    spec = DatasetSpec.from_json(inputs["nominal_spec"])
+    jobs = [SetJob(f"draw{d}", draw_spec(spec, d)) for d in range(max(counts))]
+    sets, _ = _run_jobs(jobs, context, n_jobs, progress, {})
+    draws = [sets[j.label] for j in jobs]
+    real_dir = Path(inputs["real_dir"])
+    size = inputs["nominal_spec"]["camera"]["height"]
+    fps = inputs["nominal_spec"]["preset"]["fps"]
+    clips_per = inputs["budget_settings"]["clips_per_sim"]
+    real = real_clips(real_dir, size=size, clip_len=context.clip_len,
+                      clip_stride=context.clip_stride, fps=fps, max_clips_per_video=clips_per)
+    real_features = real_ladder(real_dir, real, context, fps=fps, max_clips=clips_per)
+    n_perm = inputs["budget_settings"]["n_perm"]
+    seed = inputs["seed"]
+    return pooled_detection(draws, real_features, counts, alpha=alpha, n_perm=n_perm, seed=seed)
+
+
+def _truth(answers: Path | None, name: str) -> str:
+    if answers is None:
+        return ""
+    path = answers / f"{name}.json"
+    if not path.is_file():
+        return "?"
+    answer = json.loads(path.read_text())
+    return ", ".join(f"{e['name']}={e['strength']}" for e in answer["effects"])
+
+
+def _table(rows: list[dict]) -> str:
+    counts = [c["sims"] for c in rows[0]["by_count"]] if rows else []
+    head = "| set | withheld | " + " | ".join(f"p, {c} sims" for c in counts)
+    head += f" | rungs at {counts[-1] if counts else ''} sims |"
+    lines = [head, "|" + "---|" * (3 + len(counts))]
+    for row in rows:
+        cells = [f"{c['gap_p']:.4f}" for c in row["by_count"]]
+        rungs = ", ".join(row["by_count"][-1]["rungs"]) or "none"
+        lines.append(f"| {row['set']} | {row['truth']} | " + " | ".join(cells) + f" | {rungs} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m sim2real.power",
+                                     description=__doc__.split("\n")[0])  # fmt: skip
+    parser.add_argument("reports", nargs="+", help="report.json files of diagnoses")
+    parser.add_argument("--draws", default="2,4,6",
+                        help="nominal draws pooled, comma-separated (2 = S and S', as diagnosed)")
+    parser.add_argument("--answers", help="a validation's answers/ folder (labels the rows)")
+    parser.add_argument("--alpha", type=float, default=0.05)
+    parser.add_argument("--n-jobs", type=int, default=1)
+    parser.add_argument("--out", default="outputs/sim2real/power")
+    args = parser.parse_args(argv)
+    try:
+        counts = sorted({int(v) for v in args.draws.split(",")})
+    except ValueError:
+        sys.exit(f"--draws: {args.draws!r} must be comma-separated integers >= 1, e.g. 2,4,6")
+    if counts[0] < 1:
+        sys.exit(f"--draws: {args.draws!r} must be comma-separated integers >= 1, e.g. 2,4,6")
+    if not 0 < args.alpha < 1:
+        sys.exit(f"--alpha must be in (0, 1), got {args.alpha}")
+    for path in args.reports:
+        if not Path(path).is_file():
+            sys.exit(f"reports: {path} is not a file (give diagnoses' report.json files)")
+    from simulator.threads import use_process_threads
+
+    use_process_threads(1)
+    answers = Path(args.answers) if args.answers else None
+    rows = []
+    for path in args.reports:
+        report = json.loads(Path(path).read_text())
+        name = Path(path).parent.name
+        by_count = _study(report, counts, args.n_jobs, args.alpha, progress=True)
+        rows.append({"set": name, "truth": _truth(answers, name), "by_count": by_count})
+        print(f"{name}: " + ", ".join(f"{c['sims']} sims p {c['gap_p']:.4f}" for c in by_count),
+              flush=True)  # fmt: skip
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {"alpha": args.alpha, "draws": counts, "rows": rows}
+    for name, text in (("power.json", json.dumps(summary, indent=1)), ("power.md", _table(rows))):
+        tmp = out / f".{name}.tmp"
+        tmp.write_text(text)
+        tmp.replace(out / name)
+    print(json.dumps({"sets": len(rows), "draws": counts, "detected": {
+        str(c): int(sum(r["by_count"][i]["detected"] for r in rows)) for i, c in enumerate(counts)
+    }}))  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
