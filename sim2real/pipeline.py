@@ -76,7 +76,11 @@ class Budget:
     (:func:`spanning_classes`; ``None``: every training class). With ``sims_per_class`` it
     sets how many simulations S holds; each draws its own continuous material over the
     training span (:func:`sim2real.domains.prior_materials`)."""
-    sims_per_class: int = 3
+    sims_per_class: int = 6
+    """Simulations per class of the sub-grid (the quick budget's 9 x 6 = 54). Doubled from 3
+    after a power study (``python -m sim2real.power``): on the validation's sets whose effect
+    left no gap, pooling more nominal draws found the gap of most of them, so the limit was
+    the number of simulations, not of real videos (docs/sim2real.md)."""
     clips_per_sim: int = 3
     """Clips per simulation in S, and the first this many clips of each real video in R: both
     domains cover the same time after the wind starts. (A cloth's motion changes over its
