@@ -13,7 +13,8 @@ renders at that factor and downsamples with ``cv2.INTER_AREA``. The cloth is ren
 transparent clear colour and composited over the background with the resolved coverage alpha
 (premultiplied, so the antialiased silhouette blends instead of a hard depth > 0 mask).
 Default size 112 x 112: see :mod:`render.camera`. The process-wide environment default
-``PYOPENGL_PLATFORM=egl`` is set here before pyrender is imported, so callers need none.
+``PYOPENGL_PLATFORM=egl`` (and with it ``PYGLET_HEADLESS=1``) is set here before pyrender is
+imported, so callers need none.
 """
 
 from __future__ import annotations
@@ -33,6 +34,10 @@ from .effects import VisualEffects, apply_image_effects, effect_streams, shake_o
 from .lights import LightSpec
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+if os.environ["PYOPENGL_PLATFORM"] == "egl":
+    # pyrender imports pyglet's window module (for its viewer, which we never open); outside
+    # headless mode that loads X11 libraries, absent on a bare GPU server (seen on an H100).
+    os.environ.setdefault("PYGLET_HEADLESS", "1")
 # PyOpenGL logs at INFO that its optional C speed-up is not installed; on a command's console
 # that line lands in the middle of the progress bars and says nothing a user can act on.
 logging.getLogger("OpenGL.acceleratesupport").setLevel(logging.WARNING)

@@ -24,6 +24,7 @@ import dataclasses
 import itertools
 import logging
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy import stats as sstats
@@ -132,9 +133,9 @@ def rung_gaps(
     n_perm: int,
     n_boot: int,
     n_floor: int,
-    seed: int,
+    seed: int | Sequence[int],
 ) -> dict[str, Gap]:
-    """S vs R on every rung.
+    """S vs R on every rung (``seed``: an int or a sequence of ints, e.g. a caller's stream).
 
     Every rung's features are standardised with the pooled S and R rows and the RBF
     bandwidth is the median heuristic on them; both stay fixed for every S_e of the
@@ -155,7 +156,7 @@ def rung_gaps(
             x, y, sim.groups, real.groups, reference=pooled,
             bandwidth=median_bandwidth(standardize(pooled)),
             n_perm=n_perm, n_boot=n_boot, n_floor=n_floor,
-            rng=np.random.default_rng([seed, i]),
+            rng=np.random.default_rng(np.append(seed, i)),  # flat: numpy >= 2.5 refuses nesting
         )  # fmt: skip
     return out
 

@@ -324,3 +324,11 @@ def test_torch_compiler_import_after_rendering_does_not_crash():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=300)
     assert done.returncode == 0, done.stderr.decode()[-2000:]
+
+
+def test_pyglet_is_headless_under_egl():
+    """pyrender imports pyglet's window module; outside headless mode that loads X11
+    libraries, which a bare GPU server lacks (seen on an H100)."""
+    import pyglet
+
+    assert os.environ["PYOPENGL_PLATFORM"] != "egl" or pyglet.options["headless"]

@@ -52,6 +52,24 @@ def test_pooled_draws_keep_every_row_and_never_share_a_group():
     assert np.array_equal(both.stiffness, np.concatenate([a.stiffness, b.stiffness]))
 
 
+def test_a_seed_stream_reaches_the_generators_flat(monkeypatch):
+    """numpy 2.5 refuses nested seeds ([[seed, 11, i, j], rung]); 2.4 flattened them."""
+    seen, make = [], np.random.default_rng
+    null, other = _domain(100), _domain(1)
+
+    def flat_only(seed=None):
+        seen.append(seed)
+        assert np.ndim(seed) <= 1, f"nested seed {seed!r}"
+        return make(seed)
+
+    monkeypatch.setattr(np.random, "default_rng", flat_only)
+    p = detection_p(null, other, n_perm=19, seed=[3, 11, 0, 1])
+    streams = [list(np.ravel(s)) for s in seen]
+    assert [3, 11, 0, 1, 0] in streams and [3, 11, 0, 1, 1] in streams  # one per rung
+    monkeypatch.undo()
+    assert detection_p(null, other, n_perm=19, seed=[3, 11, 0, 1]) == p
+
+
 def test_the_detection_p_holds_its_level_and_picks_up_a_clear_shift():
     null = _domain(100)
     p_null = [detection_p(null, _domain(s), n_perm=99, seed=s) for s in range(12)]
