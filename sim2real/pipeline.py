@@ -471,8 +471,8 @@ def run_diagnosis(
 
     name = name or f"{real_dir.name}-{Path(run).name}"
 
-    def kernel(r):
-        return kernel_closure(r, ranking["kernel_rungs"])
+    def kernel(r):  # as the ranking measures the top candidate's
+        return kernel_closure(r, ranking["kernel_rungs"], threshold=ranking["threshold"])
 
     result = {
         "name": name,

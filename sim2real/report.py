@@ -79,6 +79,12 @@ def verdict(result: dict) -> str:
             f"scored rungs (threshold {100 * ranking['threshold']:.0f} %, a fresh nominal draw "
             f"closes {100 * ranking['null_score']:.0f} %)."
         )
+        at = ranking.get("kernel_strength")
+        if at is not None and at != strength and ranking.get("kernel_closure") is not None:
+            parts.append(
+                f"At strength {_fmt(at)}, which the classifier cannot tell from the fitted one, "
+                f"it also closes {100 * ranking['kernel_closure']:.0f} % of the kernel distance."
+            )
         if ranking.get("explained_by"):
             parts.append(
                 "Alone it closes less than the threshold; together with "
@@ -458,7 +464,8 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "(AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor); kernel = mean fraction of the "
         "floor-corrected MMD² closed on the scored rungs where it lies above its floor ("
         + (", ".join(result["ranking"].get("kernel_rungs", ())) or "none")
-        + "). A cause must reach the threshold on both.",
+        + "), at the fitted strength or, where larger, at another strength inside the interval "
+        "whose score also reaches the threshold. A cause must reach the threshold on both.",
         "",
         markdown_table(
             [

@@ -1,5 +1,6 @@
 """Localisation, candidate scoring and the open-set answer on planted feature shifts."""
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -14,6 +15,7 @@ from sim2real.diagnosis import (
     fit_strength,
     kernel_closure,
     kernel_rungs,
+    kernel_strengths,
     localise,
     probe_transfer,
     rank_candidates,
@@ -265,6 +267,39 @@ def test_a_look_alike_that_the_classifier_cannot_tell_apart_fails_the_kernel_che
     # with no rung above its MMD² floor the kernel cannot refute: the classifier decides
     assert kernel_closure(alike, []) is None
     assert rank_candidates([right], null, gaps, [])["kernel_closure"] is None
+
+
+def test_the_kernel_check_confirms_at_a_strength_the_classifier_cannot_tell_from_the_best(
+    planted,
+):
+    # Blind round 8, set 14014: the true effect's classifier closure peaked, by noise, at an
+    # overshooting strength where the kernel distance is not closed; at the right strength,
+    # inside the fit interval and also past the threshold, it is.
+    sim, real, gaps = planted
+    rungs = scored_rungs(localise(gaps))
+    on = kernel_rungs(gaps, rungs)
+    sizes = (0.5, 1.5, 3.0)
+    shifted = [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes]
+    right = candidate_result("visual.right", "camera", sizes, shifted, sim, real, gaps, rungs)
+    null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
+    assert kernel_closure(right, on) > 0.8 and right.best_strength == 1.5
+    overshoot = [0.55, right.score[1], right.score[1] + 0.01]  # the maximum moves to 3.0
+    noisy = dataclasses.replace(right, score=overshoot, fit_interval=(0.5, 3.0))
+    assert noisy.best_strength == 3.0
+    assert kernel_closure(noisy, on) < KERNEL_MIN_CLOSURE  # overshot: the distance stays
+    assert kernel_strengths(noisy, 0.5) == [0, 1, 2]
+    ranking = rank_candidates([noisy, null], null, gaps, rungs)
+    assert ranking["explained"] and not ranking["look_alike"]
+    assert ranking["kernel_strength"] == 1.5
+    assert ranking["kernel_closure"] == kernel_closure(right, on)
+    # the classifier tells 1.5 from 3.0 (outside the interval): no second chance
+    told_apart = dataclasses.replace(noisy, fit_interval=(2.5, 3.0))
+    ranking = rank_candidates([told_apart, null], null, gaps, rungs)
+    assert ranking["look_alike"] and ranking["kernel_strength"] == 3.0
+    # nor at a strength whose classifier closure stays under the threshold
+    weak = dataclasses.replace(noisy, score=[0.2, 0.3, 0.9])
+    assert kernel_strengths(weak, 0.5) == [2]
+    assert rank_candidates([weak, null], null, gaps, rungs)["look_alike"]
 
 
 def test_probes_transfer_only_where_the_real_labels_follow_the_features():
