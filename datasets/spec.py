@@ -38,6 +38,11 @@ MOTIONS = {"wind": ScenarioWind, "arm": ScenarioArmBend}
 
 SPLITS = ("train", "val", "test")
 
+_LATER_VISUAL_FIELDS = ("vignetting", "vignetting_strength")
+"""Visual-effect fields added after datasets were made: :meth:`DatasetSpec.to_json` leaves
+them out while at their defaults, so those datasets keep their keys."""
+_DEFAULT_VISUAL = VisualEffects()
+
 
 def check_int(name: str, value, low: int = 1) -> int:
     """``value`` if it is an integer >= ``low``; else a ValueError naming ``name``."""
@@ -306,7 +311,8 @@ class DatasetSpec:
         :data:`~simulator.cloth.material.WANG54`, so datasets made before they existed keep
         their keys (and resume); :meth:`from_json` reads a missing set as ``WANG54``. The
         Newton loop's ``whole_step`` (same arithmetic, one compiled call) appears only when
-        off, for the same reason.
+        off, and the visual-effect fields added later (:data:`_LATER_VISUAL_FIELDS`) only when
+        one of them is off its default, for the same reason.
         """
         out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
         if not self.store_passes:
@@ -315,6 +321,10 @@ class DatasetSpec:
             del out["sim"]["newton"]["whole_step"]
         if self.material_set == WANG54:
             del out["material_set"]
+        later = {n: _jsonable(getattr(_DEFAULT_VISUAL, n)) for n in _LATER_VISUAL_FIELDS}
+        if all(out["visual"][n] == v for n, v in later.items()):  # absent while all default
+            for name in later:
+                del out["visual"][name]
         return out
 
     @classmethod

@@ -8,12 +8,14 @@ The sim-to-real study turns these on one at a time, like the physical effects in
 * **image effects** are pure numpy/cv2 functions on uint8 clips of shape (K, H, W, 3),
   applied by :func:`apply_image_effects` after rendering in the fixed order
   :data:`IMAGE_EFFECT_ORDER`, which follows a camera pipeline: temporal sampling
-  (``frame_rate``), optics (``defocus_blur``), sensor (``sensor_noise``), image processor
-  (``white_balance``), codec (``compression``).
+  (``frame_rate``), optics (``defocus_blur``, ``vignetting``), sensor (``sensor_noise``),
+  image processor (``white_balance``), codec (``compression``).
 
 Randomness: :func:`effect_streams` turns the clip's Generator into one independent stream per
 effect name (always all of them, in :data:`EFFECT_NAMES` order), so switching one effect on
-or off never changes the random draws of another.
+or off never changes the random draws of another. Deterministic effects (``vignetting``) have
+no stream, so adding one leaves every other effect's draws, and so old datasets' bytes, as
+they were.
 """
 
 from __future__ import annotations
@@ -28,8 +30,10 @@ import cv2
 import numpy as np
 
 __all__ = [
+    "DETERMINISTIC_EFFECTS",
     "EFFECT_NAMES",
     "IMAGE_EFFECT_ORDER",
+    "RANDOM_EFFECTS",
     "RENDER_EFFECTS",
     "FrameRateMode",
     "VisualEffects",
@@ -37,6 +41,7 @@ __all__ = [
     "apply_image_effects",
     "apply_jpeg",
     "apply_sensor_noise",
+    "apply_vignetting",
     "apply_white_balance",
     "draw_white_balance_gains",
     "effect_streams",
@@ -44,6 +49,7 @@ __all__ = [
     "resampled_frame_count",
     "shake_offsets",
     "source_frame_count",
+    "vignetting_gain",
 ]
 
 
@@ -107,6 +113,8 @@ class VisualEffects:
     """Per-clip colour cast: RGB gains in 1 ± ``white_balance_shift``, normalised to mean 1."""
     frame_rate: bool = _switch("camera")
     """Resample the clip in time to ``frame_rate_ratio`` x its frame rate (changes K)."""
+    vignetting: bool = _switch("camera")
+    """Lens shading: brightness falls off with the distance from the frame's centre."""
 
     motion_blur_samples: int = 4
     """Sub-frame renders per frame (>= 2)."""
@@ -141,6 +149,8 @@ class VisualEffects:
     """Output frame rate / input frame rate (> 0); the clip keeps its duration."""
     frame_rate_mode: FrameRateMode = FrameRateMode.BLEND
     """``blend`` or ``drop`` (see :class:`FrameRateMode`)."""
+    vignetting_strength: float = _strength(0.3, "vignetting", 0.05, 0.6)
+    """Relative darkening at the frame's corners (gain ``1 - s r²``, r = 1 at a corner)."""
 
     def __post_init__(self):
         for name in EFFECT_NAMES:
@@ -171,6 +181,7 @@ class VisualEffects:
             "defocus_radius_max_px": (0.0, 100.0, False),
             "white_balance_shift": (0.0, 0.999, False),
             "frame_rate_ratio": (1e-3, 1e3, False),
+            "vignetting_strength": (0.0, 1.0, False),
         }
         for name, (lo, hi, integer) in checks.items():
             value = getattr(self, name)
@@ -205,6 +216,7 @@ EFFECT_NAMES: tuple[str, ...] = tuple(
 IMAGE_EFFECT_ORDER: tuple[str, ...] = (
     "frame_rate",
     "defocus_blur",
+    "vignetting",
     "sensor_noise",
     "white_balance",
     "compression",
@@ -215,11 +227,18 @@ RENDER_EFFECTS: tuple[str, ...] = tuple(n for n in EFFECT_NAMES if n not in IMAG
 """Effects the renderer itself implements."""
 
 
+DETERMINISTIC_EFFECTS: tuple[str, ...] = ("vignetting",)
+"""Effects that draw nothing: :func:`effect_streams` makes no stream for them."""
+
+RANDOM_EFFECTS: tuple[str, ...] = tuple(n for n in EFFECT_NAMES if n not in DETERMINISTIC_EFFECTS)
+"""Effects with a random stream, in :data:`EFFECT_NAMES` order."""
+
+
 def effect_streams(rng: np.random.Generator) -> dict[str, np.random.Generator]:
-    """One independent Generator per effect name, drawn from ``rng`` (one draw of N seeds)."""
-    seeds = rng.integers(0, np.iinfo(np.int64).max, size=len(EFFECT_NAMES))
+    """One independent Generator per random effect, drawn from ``rng`` (one draw of N seeds)."""
+    seeds = rng.integers(0, np.iinfo(np.int64).max, size=len(RANDOM_EFFECTS))
     return {
-        name: np.random.default_rng(int(s)) for name, s in zip(EFFECT_NAMES, seeds, strict=True)
+        name: np.random.default_rng(int(s)) for name, s in zip(RANDOM_EFFECTS, seeds, strict=True)
     }
 
 
@@ -303,6 +322,26 @@ def apply_defocus_blur(clip: np.ndarray, radius_px: float) -> np.ndarray:
     return np.stack(
         [cv2.filter2D(frame, -1, kernel, borderType=cv2.BORDER_REFLECT_101) for frame in clip]
     )
+
+
+def vignetting_gain(height: int, width: int, strength: float) -> np.ndarray:
+    """Lens-shading gain ``1 - strength * r²`` per pixel, float32, shape (H, W).
+
+    ``r`` is the distance of the pixel centre from the frame's centre over the half-diagonal,
+    so the corners get ``1 - strength``: the even, second-order falloff of a lens's
+    off-axis shading (natural vignetting's cos⁴ law is ``1 - 2 θ² + ...`` near the axis).
+    """
+    y = (np.arange(height, dtype=np.float64) + 0.5 - height / 2) / (height / 2)
+    x = (np.arange(width, dtype=np.float64) + 0.5 - width / 2) / (width / 2)
+    r2 = (y[:, None] ** 2 + x[None, :] ** 2) / 2.0
+    return (1.0 - strength * r2).astype(np.float32)
+
+
+def apply_vignetting(clip: np.ndarray, strength: float) -> np.ndarray:
+    """Darken every frame towards its corners by :func:`vignetting_gain` (rounded, clipped)."""
+    clip = _check_clip(clip)
+    gain = vignetting_gain(clip.shape[1], clip.shape[2], strength)[None, :, :, None]
+    return np.clip(np.rint(clip.astype(np.float32) * gain), 0, 255).astype(np.uint8)
 
 
 def apply_sensor_noise(
@@ -418,6 +457,8 @@ def apply_image_effects(
         clip = apply_defocus_blur(clip, radius)
         if cover is not None:
             cover = apply_defocus_blur(cover, radius)
+    if effects.vignetting:
+        clip = apply_vignetting(clip, effects.vignetting_strength)
     if effects.sensor_noise:
         clip = apply_sensor_noise(
             clip,

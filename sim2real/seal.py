@@ -2,10 +2,10 @@
 
 ``python -m sim2real.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
 from the seed alone, one or two effects of the candidate library at strengths inside their
-plausible ranges (or an effect outside the library: rolling shutter, vignetting, a tone
-curve, a stronger wind), plus nuisance differences (fresh textures and backgrounds, a slightly
-moved camera, the wind direction's jitter off nominal) and continuous materials (stretch and
-bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
+plausible ranges (or an effect outside the library: rolling shutter, barrel lens distortion,
+a tone curve, a stronger wind), plus nuisance differences (fresh textures and backgrounds, a
+slightly moved camera, the wind direction's jitter off nominal) and continuous materials
+(stretch and bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
 writes only what a real set has: one folder of PNG frames per video and ``labels.csv``
 (video, stiffness, density, wind, fps), with neutral names. The answer goes to a separate
 JSON file (default ``DIR.answer.json``) whose sha256 is printed; the diagnosis never reads it.
@@ -22,6 +22,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from datasets.plan import SimulationPlan
@@ -40,13 +41,15 @@ __all__ = ["OPEN_SET_EFFECTS", "SEAL_KINDS", "draw_answer", "seal_set"]
 
 OPEN_SET_EFFECTS = {
     "rolling_shutter": ("camera", (0.5, 1.0)),
-    "vignetting": ("camera", (0.3, 0.6)),
+    "barrel_distortion": ("camera", (0.1, 0.25)),
     "tone_curve": ("camera", (0.55, 0.75)),
     "wind_speed": ("scene", (1.4, 1.8)),
 }
 """Effects no switch models: stage and strength range. Rolling shutter: readout time as a
-fraction of the frame interval; vignetting: darkening at the corners; tone curve: gamma
-(< 1 brightens the mid-tones); wind speed: factor on the scene's wind speeds."""
+fraction of the frame interval; barrel distortion: the pixel at radius r (1 at a corner) shows
+the scene at r (1 + k r²) (a wide-angle lens's first radial term); tone curve: gamma (< 1
+brightens the mid-tones); wind speed: factor on the scene's wind speeds. Vignetting was one
+until it became a library effect (``visual.vignetting``, 2026-11-27)."""
 
 SEAL_KINDS = ("single", "pair", "open")
 _KIND_WEIGHTS = (0.5, 0.25, 0.25)
@@ -133,10 +136,16 @@ def _apply_open_set(frames: np.ndarray, name: str, strength: float) -> np.ndarra
         share = (strength * np.arange(height) / height)[None, :, None, None].astype(np.float32)
         later = np.concatenate([values[1:], values[-1:]])
         values = (1 - share) * values + share * later
-    elif name == "vignetting":
-        y, x = np.mgrid[0:height, 0:width].astype(np.float32)
-        radius = np.hypot((x - width / 2) / (width / 2), (y - height / 2) / (height / 2))
-        values = values * (1 - strength * (radius / math.sqrt(2)) ** 2)[None, :, :, None]
+    elif name == "barrel_distortion":
+        y, x = np.mgrid[0:height, 0:width].astype(np.float32) + 0.5
+        u, v = (x - width / 2) / (width / 2), (y - height / 2) / (height / 2)
+        scale = 1 + strength * (u * u + v * v) / 2
+        map_x = (u * scale * (width / 2) + width / 2 - 0.5).astype(np.float32)
+        map_y = (v * scale * (height / 2) + height / 2 - 0.5).astype(np.float32)
+        values = np.stack([
+            cv2.remap(frame, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+            for frame in values
+        ])  # fmt: skip
     elif name == "tone_curve":
         values = 255.0 * (values / 255.0) ** strength
     return np.clip(np.rint(values), 0, 255).astype(np.uint8)

@@ -103,6 +103,21 @@ def test_keys_separate_physics_from_rendering():
     assert tiny_spec(seed=3).physics_key() != spec.physics_key()
 
 
+def test_visual_effects_added_later_leave_old_keys_alone():
+    """A spec with the later effects at their defaults writes the JSON (and key) of before."""
+    from render.effects import VisualEffects
+
+    plain = tiny_spec().to_json()
+    assert "vignetting" not in plain["visual"] and "vignetting_strength" not in plain["visual"]
+    on = tiny_spec(visual=VisualEffects(vignetting=True)).to_json()
+    assert on["visual"]["vignetting"] is True and on["visual"]["vignetting_strength"] == 0.3
+    stronger = tiny_spec(visual=VisualEffects(vignetting_strength=0.5))
+    assert stronger.to_json()["visual"]["vignetting_strength"] == 0.5
+    assert len({tiny_spec().key(), stronger.key(), tiny_spec(visual=VisualEffects(
+        vignetting=True)).key()}) == 3  # fmt: skip
+    assert stronger.physics_key() == tiny_spec().physics_key()
+
+
 def test_spec_round_trips_through_its_json_form():
     import json
 
@@ -112,6 +127,7 @@ def test_spec_round_trips_through_its_json_form():
 
     specs = [
         tiny_spec(),
+        tiny_spec(visual=VisualEffects(vignetting=True, vignetting_strength=0.45)),
         tiny_spec(
             visual=VisualEffects(motion_blur=True, frame_rate_mode="drop"),
             physics=PhysicsEffects(aero_lift=True, anisotropic_stiffness=False),

@@ -6,12 +6,15 @@ import numpy as np
 import pytest
 
 from render.effects import (
+    DETERMINISTIC_EFFECTS,
     EFFECT_NAMES,
     IMAGE_EFFECT_ORDER,
+    RANDOM_EFFECTS,
     RENDER_EFFECTS,
     VisualEffects,
     apply_image_effects,
     apply_jpeg,
+    apply_vignetting,
     effect_streams,
     resample_frame_rate,
     resampled_frame_count,
@@ -32,7 +35,7 @@ def test_all_effects_off_by_default_and_partitioned():
     effects = VisualEffects()
     assert not any(effects.enabled().values())
     assert set(EFFECT_NAMES) == set(IMAGE_EFFECT_ORDER) | set(RENDER_EFFECTS)
-    assert len(EFFECT_NAMES) == 10
+    assert len(EFFECT_NAMES) == 11
 
 
 def test_from_dict_names_unknown_keys_and_the_allowed_ones():
@@ -56,6 +59,7 @@ def test_from_dict_names_unknown_keys_and_the_allowed_ones():
         ("sensor_noise", "yes"),
         ("specular_roughness", 2.0),
         ("defocus_radius_min_px", 5.0),
+        ("vignetting_strength", 1.5),
     ],
 )
 def test_bad_parameters_raise_naming_the_field(field, value):
@@ -131,7 +135,33 @@ def test_effect_streams_are_independent_of_other_switches(clip):
     b = apply_image_effects(clip, both, np.random.default_rng(7))
     np.testing.assert_array_equal(a, b)
     streams = effect_streams(np.random.default_rng(7))
-    assert list(streams) == list(EFFECT_NAMES)
+    assert list(streams) == list(RANDOM_EFFECTS)
+    assert set(RANDOM_EFFECTS) | set(DETERMINISTIC_EFFECTS) == set(EFFECT_NAMES)
+
+
+def test_a_deterministic_effect_leaves_every_stream_as_before():
+    """Streams are the draws of the ten effects that existed before vignetting, in order."""
+    before = ("motion_blur", "sensor_noise", "compression", "lighting_variation", "specular",
+              "shadows", "camera_shake", "defocus_blur", "white_balance", "frame_rate")  # fmt: skip
+    assert RANDOM_EFFECTS == before
+    seeds = np.random.default_rng(7).integers(0, np.iinfo(np.int64).max, size=len(before))
+    streams = effect_streams(np.random.default_rng(7))
+    for name, seed in zip(before, seeds, strict=True):
+        assert streams[name].random() == np.random.default_rng(int(seed)).random()
+
+
+def test_vignetting_is_an_even_radial_falloff_reaching_one_minus_strength_at_the_corners():
+    flat = np.full((1, 64, 48, 3), 200, np.uint8)
+    out = apply_vignetting(flat, 0.4).astype(float)[0, ..., 0]
+    assert out[31:33, 23:25].min() >= 199  # the centre keeps its level
+    np.testing.assert_allclose(out[[0, 0, -1, -1], [0, -1, 0, -1]], 200 * 0.6, atol=3)
+    np.testing.assert_array_equal(out, out[::-1, ::-1])  # symmetric about the centre
+    np.testing.assert_array_equal(out, out[:, ::-1])
+    row = out[32, 24:]  # falls off monotonically towards the edge
+    assert np.all(np.diff(row) <= 0) and row[-1] < row[0] - 10
+    weaker = apply_vignetting(flat, 0.1).astype(float)[0, ..., 0]
+    assert np.all(weaker >= out) and weaker[0, 0] > out[0, 0] + 30
+    np.testing.assert_array_equal(apply_vignetting(flat, 0.0), flat)
 
 
 def test_shake_offsets_amplitude_and_smoothness():

@@ -64,7 +64,7 @@ def test_a_wrong_top_in_the_right_stage_counts_as_stage_and_top3_only():
 
 
 def test_open_sets_score_false_attribution_and_residual_stage():
-    answer = _answer("vignetting", kind="open", library=False)
+    answer = _answer("barrel_distortion", kind="open", library=False)
     named = score_set(_result("visual.sensor_noise"), answer)
     assert named["false_attribution"] and "top1" not in named
     residual = score_set(
@@ -124,7 +124,7 @@ def test_the_summary_counts_detection_and_top1_where_a_gap_was_found():
     missed = score_set(_result("visual.sensor_noise", explained=False) | {"scored_rungs": []},
                        _answer("visual.sensor_noise"))  # fmt: skip
     open_set = score_set(_result("visual.sensor_noise") | {"scored_rungs": ["pixel"]},
-                         _answer("vignetting", kind="open", library=False))  # fmt: skip
+                         _answer("barrel_distortion", kind="open", library=False))  # fmt: skip
     summary = summarise([hit, missed, open_set])  # an open set has no effect to rank
     assert summary["detected"] == 0.5 and summary["detected_n"] == 2
     assert summary["top1_detected"] == 1.0 and summary["top1_detected_n"] == 1
