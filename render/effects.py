@@ -12,10 +12,10 @@ The sim-to-real study turns these on one at a time, like the physical effects in
   image processor (``white_balance``), codec (``compression``).
 
 Randomness: :func:`effect_streams` turns the clip's Generator into one independent stream per
-effect name (always all of them, in :data:`EFFECT_NAMES` order), so switching one effect on
-or off never changes the random draws of another. Deterministic effects (``vignetting``) have
-no stream, so adding one leaves every other effect's draws, and so old datasets' bytes, as
-they were.
+random effect (always all of them, in :data:`RANDOM_EFFECTS` order), so switching one effect
+on or off never changes the random draws of another. Deterministic effects (``vignetting``)
+have no stream, so adding one leaves every other effect's draws, and so old datasets' bytes,
+as they were.
 """
 
 from __future__ import annotations

@@ -48,6 +48,7 @@ from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
 from .network import adapt_batchnorm, layer_features
 from .report import contact_sheet, json_safe, write_report
+from .stacking import STACK_MIN_LEADER, stacked_fit
 
 __all__ = [
     "Budget", "SetContext", "SetJob", "build_set", "load_run", "real_ladder", "run_diagnosis",
@@ -461,6 +462,13 @@ def run_diagnosis(
     build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
     shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs, before)
     ranking = _explained_together(ranking, shapley, {r.name: r.best_score for r in results})
+    ranking, stacked = _stack_on_leader(
+        ranking, plan, results, spec, budget,
+        build=lambda specs: build([SetJob(label, s) for label, s in specs.items()]),
+        score=lambda name, stage, values, labels: candidate_result(
+            name, stage, values, [sets[label] for label in labels], nominal, real_features,
+            gaps, rungs, before),
+    )  # fmt: skip
     swaps, built, built_cached = _stage_swaps(
         spec, library, plan, sets, nominal, real, real_features, gaps, context, net,
         budget=budget, n_jobs=n_jobs, progress=progress, timing=timing, seed=seed,
@@ -500,6 +508,7 @@ def run_diagnosis(
         "ranking": ranking,
         "residual": residual,
         "shapley": shapley,
+        "stacked": stacked,
         "counterfactuals": swaps,
         "residual_stage": stage_of_residual(location, ranking["stage_scores"]),
         "detectability": detectability,
@@ -652,6 +661,36 @@ def _explained_together(ranking: dict, shapley: dict | None, alone: dict[str, fl
     return {**ranking, "explained": True, "look_alike": False, "explained_by": best.split("+"),
             "explained_by_score": holding[best],
             "explained_by_kernel_closure": shapley["kernel_closure"][best]}  # fmt: skip
+
+
+def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score):
+    """The ranking, explained by a partner fitted on top of the leader when it alone is not.
+
+    Runs :func:`sim2real.stacking.stacked_fit` when nothing explains the gap yet and the
+    leader closes at least :data:`~sim2real.stacking.STACK_MIN_LEADER`; partners are the
+    candidates that re-render, each over its budget grid. Returns (ranking, the fit or
+    ``None``).
+    """
+    top = ranking["top"]
+    if ranking["explained"] or top is None:
+        return ranking, None
+    i = next(i for i, r in enumerate(results) if r.name == top)
+    if results[i].best_score < STACK_MIN_LEADER:
+        return ranking, None
+    partners = [
+        (c, c.strengths(budget.strengths), results[j].best_score)
+        for j, (c, _) in enumerate(plan) if j != i and not c.needs_simulation
+    ]  # fmt: skip
+    fit = stacked_fit(
+        spec, plan[i][0], results[i], plan[i][1], partners, build, score,
+        kernel=lambda r: kernel_closure(r, ranking["kernel_rungs"]),
+        threshold=ranking["threshold"],
+    )  # fmt: skip
+    if not fit["explained"]:
+        return ranking, fit
+    return {**ranking, "explained": True, "look_alike": False,
+            "explained_by": [top, fit["best"]], "explained_by_score": fit["score"],
+            "explained_by_kernel_closure": fit["kernel_closure"]}, fit  # fmt: skip
 
 
 def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:

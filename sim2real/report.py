@@ -245,6 +245,27 @@ def _shapley_lines(shapley: dict | None) -> list[str]:
     ]
 
 
+def _stacked_lines(stacked: dict | None) -> list[str]:
+    """The partners fitted on top of the leader (:mod:`sim2real.stacking`), best first."""
+    if not stacked or not stacked["partners"]:
+        return []
+    order = sorted(stacked["partners"].items(), key=lambda kv: -max(kv[1]["score"]))
+    rows = [[n, _fmt(v["strengths"][v["score"].index(max(v["score"]))]),
+             f"{100 * max(v['score']):.0f} %"] for n, v in order]  # fmt: skip
+    verdict = "explains the gap" if stacked["explained"] else "does not explain the gap"
+    kernel = stacked["kernel_closure"]
+    return [
+        "",
+        f"Stacked fit: with {stacked['leader']} held at {_fmt(stacked['leader_strength'])}, "
+        f"each candidate that re-renders was fitted on top of it. The best pair, with "
+        f"{stacked['best']}, closes {100 * stacked['score']:.0f} % (kernel "
+        f"{'–' if kernel is None else f'{100 * kernel:.0f} %'}) and {verdict}.",
+        "",
+        markdown_table(["partner", "best strength", "pair closes"], rows),
+        "",
+    ]
+
+
 def _predictivity_lines(srcc: dict | None) -> list[str]:
     """Sim-to-real predictivity (SRCC) before and after, with the per-checkpoint scores."""
     if not srcc:
@@ -481,6 +502,7 @@ def _markdown(result: dict, figures: list[str]) -> str:
             _candidate_rows(result),
         ),
         *_shapley_lines(result.get("shapley")),
+        *_stacked_lines(result.get("stacked")),
         *_detectability_lines(result.get("detectability")),
         "Best score per stage: "
         + ", ".join(
