@@ -57,6 +57,7 @@ __all__ = [
     "agrees",
     "best_subset_values",
     "candidate_result",
+    "explains_together",
     "fit_strength",
     "harmonic_mean_p",
     "kernel_closure",
@@ -600,6 +601,20 @@ def kernel_strengths(result: CandidateResult, threshold: float) -> list[int]:
 def agrees(kernel: float | None) -> bool:
     """Whether a kernel closure (:func:`kernel_closure`) confirms a cause."""
     return kernel is None or kernel >= KERNEL_MIN_CLOSURE
+
+
+def explains_together(
+    score: float, kernel: float | None, threshold: float, without: list[float]
+) -> bool:
+    """Whether candidates measured together (a coalition, a stacked pair) explain the gap.
+
+    Their closure ``score`` clears the open-set ``threshold`` by :data:`OPEN_SET_MARGIN`
+    (their strengths are all fitted, so they close more by chance than one candidate), the
+    kernel closure agrees (:func:`agrees`), and every member adds: the group closes more
+    than each of ``without``, the closures of the group without one member.
+    """
+    return (score >= threshold + OPEN_SET_MARGIN and agrees(kernel)
+            and all(score > other for other in without))  # fmt: skip
 
 
 def rank_candidates(

@@ -27,10 +27,9 @@ from .candidates import Candidate, candidate_library, select_candidates
 from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
 from .detectability import candidate_detectability
 from .diagnosis import (
-    OPEN_SET_MARGIN,
-    agrees,
     best_subset_values,
     candidate_result,
+    explains_together,
     fit_strength,
     kernel_closure,
     kernel_rungs,
@@ -645,19 +644,18 @@ def _explained_together(ranking: dict, shapley: dict | None, alone: dict[str, fl
     measured = {frozenset([n]): v for n, v in alone.items()}
     measured.update({frozenset(k.split("+")): v for k, v in shapley["coalitions"].items()})
 
-    def adds(coalition: frozenset) -> bool:
-        return all(measured[coalition] > measured[coalition - {m}] for m in coalition)
+    def without(coalition: frozenset) -> list[float]:
+        return [measured[coalition - {m}] for m in coalition]
 
     holding = {
         k: v for k, v in shapley["coalitions"].items()
-        if ranking["top"] in k.split("+") and agrees(shapley["kernel_closure"][k])
-        and adds(frozenset(k.split("+")))
+        if ranking["top"] in k.split("+")
+        and explains_together(v, shapley["kernel_closure"][k], ranking["threshold"],
+                              without(frozenset(k.split("+"))))
     }  # fmt: skip
     if not holding:
         return ranking
     best = max(holding, key=holding.get)
-    if holding[best] < ranking["threshold"] + OPEN_SET_MARGIN:
-        return ranking
     return {**ranking, "explained": True, "look_alike": False, "explained_by": best.split("+"),
             "explained_by_score": holding[best],
             "explained_by_kernel_closure": shapley["kernel_closure"][best]}  # fmt: skip

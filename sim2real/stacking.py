@@ -9,8 +9,8 @@ leader closes part of the gap but not enough, it is held at its fitted strength 
 candidate that only re-renders (no simulation) is fitted on top of it over its grid; the
 leader is then refitted under the best partner when it re-renders too. The pair explains
 the gap under the coalition rules of :func:`sim2real.pipeline._explained_together`: it
-clears the open-set threshold by :data:`~sim2real.diagnosis.OPEN_SET_MARGIN`, its kernel
-closure agrees, and it closes more than either member alone.
+clears the open-set threshold by a margin, its kernel closure agrees, and it closes more than
+either member alone (:func:`sim2real.diagnosis.explains_together`).
 
 The functions here are pure: the caller builds the sets (``build``) and scores them
 (``score``), so the same cache and workers serve them as every other candidate set.
@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from .candidates import Candidate
-from .diagnosis import OPEN_SET_MARGIN, CandidateResult, agrees
+from .diagnosis import CandidateResult, explains_together
 
 __all__ = ["STACK_MIN_LEADER", "stack_label", "stacked_fit"]
 
@@ -109,8 +109,7 @@ def stacked_fit(
                kernel_closure=closes)  # fmt: skip
     if pair is not fit:
         out["leader_strength"] = pair.best_strength
-    out["explained"] = bool(
-        pair.best_score >= threshold + OPEN_SET_MARGIN and agrees(closes)
-        and pair.best_score > leader_result.best_score and pair.best_score > alone
-    )  # fmt: skip
+    out["explained"] = explains_together(
+        pair.best_score, closes, threshold, [leader_result.best_score, alone]
+    )
     return out
