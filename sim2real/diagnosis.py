@@ -24,7 +24,7 @@ import dataclasses
 import itertools
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy import stats as sstats
@@ -68,6 +68,7 @@ __all__ = [
     "rank_candidates",
     "reference_scores",
     "rung_gaps",
+    "score_reference",
     "scored_rungs",
     "shapley_values",
     "stage_of_residual",
@@ -235,16 +236,51 @@ def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
     }
 
 
-def scored_rungs(location: dict) -> list[str]:
+def scored_rungs(location: dict, scoreable: Callable[[str], bool] | None = None) -> list[str]:
     """Rungs a candidate is scored on.
 
     Pixel and motion where they show the gap, plus the first network layer that shows it
     (one layer stands for the net: its layers are strongly correlated); none without a gap.
+    ``scoreable`` (see :func:`score_reference`), when given, passes over the rungs it rejects;
+    when it rejects every rung that shows the gap, the choice without it is kept.
     """
-    rungs = [n for n in PIXEL_RUNGS if n in location["significant"]]
-    if location["first_significant_layer"] is not None:
-        rungs.append(location["first_significant_layer"])
-    return rungs
+    significant = location["significant"]
+    layers = [n for n in significant if n not in PIXEL_RUNGS]
+    first = location["first_significant_layer"]
+    chosen = [n for n in PIXEL_RUNGS if n in significant] + ([first] if first else [])
+    if scoreable is None:
+        return chosen
+    kept = [n for n in PIXEL_RUNGS if n in significant and scoreable(n)]
+    kept += next(([n] for n in layers if scoreable(n)), [])
+    return kept or chosen
+
+
+def score_reference(
+    location: dict, gaps: dict[str, Gap], sim: LadderFeatures, real: LadderFeatures
+) -> tuple[list[str], ReferenceScores]:
+    """The scored rungs and S's domain classifier on them (:func:`reference_scores`).
+
+    The pooled test (S and S' against R) finds where the gap lies, but candidates are scored
+    against S alone, whose classifier can sit at its within-domain floor on a rung where
+    the pooled test sees a weak gap. There every candidate closes 0 of nothing
+    (:func:`sim2real.stats.gap_closed`): the rung carries no information and only dilutes the
+    score, and when every scored rung is such a rung nothing can explain the gap (blind set
+    16014: lighting variation's gap on pixel and enc.block1, inside S's floor on both, while
+    the deeper layers showed it clearly). Such rungs are passed over: pixel or motion is
+    dropped, and the network layer becomes the first significant one where S's classifier
+    is above its floor (or saturated).
+    """
+    significant = list(location["significant"])
+    before = reference_scores(sim, real, significant)
+
+    def scoreable(rung: str) -> bool:
+        return before.saturated(rung) or before.auc[rung] > _auc_floor(gaps[rung])
+
+    rungs = scored_rungs(location, scoreable)  # significant rungs only, so measured above
+    return rungs, ReferenceScores(
+        auc={r: before.auc[r] for r in rungs},
+        divergence={r: before.divergence[r] for r in rungs},
+    )
 
 
 def _distance(sim: LadderFeatures, a: LadderFeatures, real: LadderFeatures, rung: str, bw: float):

@@ -36,9 +36,8 @@ from .diagnosis import (
     localise,
     probe_transfer,
     rank_candidates,
-    reference_scores,
     rung_gaps,
-    scored_rungs,
+    score_reference,
     shapley_values,
     stage_of_residual,
 )
@@ -389,8 +388,7 @@ def run_diagnosis(
     detection = rung_gaps(LadderFeatures.pooled(nominal, sets["S'"]), real_features, **settings)
     location = localise(detection, alpha=alpha)
     gaps = rung_gaps(nominal, real_features, **settings)
-    rungs = scored_rungs(location)
-    before = reference_scores(nominal, real_features, rungs)
+    rungs, before = score_reference(location, gaps, nominal, real_features)
     timing["fit"] = time.perf_counter() - tick
 
     def score(plan):

@@ -21,6 +21,7 @@ from sim2real.diagnosis import (
     rank_candidates,
     reference_scores,
     rung_gaps,
+    score_reference,
     scored_rungs,
     shapley_values,
     stage_of_residual,
@@ -86,6 +87,47 @@ def test_the_gap_is_localised_on_the_planted_rung(planted):
     assert gaps["pixel"].corrected_auc > 0.5
     assert scored_rungs(location)[0] == "pixel"
     assert stage_of_residual(location).startswith("appearance or camera")
+
+
+def test_rungs_that_the_scorer_rejects_are_passed_over():
+    location = {"significant": ["pixel", "motion", "enc.block1", "enc.block2", "lstm"],
+                "first_significant_layer": "enc.block1"}  # fmt: skip
+    assert scored_rungs(location) == ["pixel", "motion", "enc.block1"]
+    assert scored_rungs(location, lambda r: r not in ("pixel", "enc.block1")) == [
+        "motion", "enc.block2"]  # fmt: skip
+    # when it rejects every rung that shows the gap, the choice without it stands
+    assert scored_rungs(location, lambda r: False) == ["pixel", "motion", "enc.block1"]
+    assert scored_rungs({"significant": [], "first_significant_layer": None}, bool) == []
+
+
+def _with_blind_layer(features: LadderFeatures, like: LadderFeatures) -> LadderFeatures:
+    """``features`` plus a first layer 'enc.block0' whose values are those of ``like``."""
+    rungs = {"enc.block0": like.rungs["motion"] @ PROJECTION, **features.rungs}
+    return dataclasses.replace(features, rungs=rungs)
+
+
+def test_a_layer_where_s_sits_at_its_floor_is_not_scored(planted):
+    """The pooled test can flag a rung on which S alone shows nothing (blind set 16014).
+
+    Scored there, every candidate closes 0 and the planted effect cannot explain the gap;
+    the scorer passes over it to the next layer that shows the gap.
+    """
+    sim, real = (_with_blind_layer(x, planted[0]) for x in planted[:2])  # R's = S's there
+    gaps = rung_gaps(sim, real, n_perm=199, n_boot=99, n_floor=6, seed=0)
+    # standing in for the pooled test: it flags enc.block0 and motion, where S shows nothing
+    location = {"significant": ["motion", "enc.block0", "enc.block1"],
+                "first_significant_layer": "enc.block0"}  # fmt: skip
+    sizes = (0.5, 1.5, 3.0)
+    sets = [_with_blind_layer(_shifted(planted[0], "pixel", _shift([0, 1, 2], a)), planted[0])
+            for a in sizes]  # fmt: skip
+    old = scored_rungs(location)
+    right_old = candidate_result("visual.right", "camera", sizes, sets, sim, real, gaps, old)
+    assert right_old.best_score == 0.0  # nothing to close on motion and enc.block0
+    rungs, before = score_reference(location, gaps, sim, real)
+    assert rungs == ["enc.block1"]
+    assert before.auc == reference_scores(sim, real, rungs).auc
+    right = candidate_result("visual.right", "camera", sizes, sets, sim, real, gaps, rungs, before)
+    assert right.best_strength == 1.5 and right.best_score > 0.6
 
 
 def test_the_residual_stage_follows_the_candidates_that_close_most():
