@@ -200,6 +200,16 @@ def test_the_strength_fit_lands_between_grid_points_with_an_interval_that_covers
     flat = fit_strength(flat, wrong, sim, real, gaps, rungs, log_scale=False, n_boot=200,
                         rng=np.random.default_rng(0))  # fmt: skip
     assert flat.interval[1] - flat.interval[0] > hi - lo
+    # a plateau of tied best scores (closures clip at 1): the interval spans all of it and
+    # half a grid step beyond, although the fit takes the first (blind round 9, 16019)
+    plateau = dataclasses.replace(result, score=[0.2, 1.0, 1.0, 1.0])
+    plateau = fit_strength(plateau, sets, sim, real, gaps, rungs, log_scale=False, n_boot=200,
+                           rng=np.random.default_rng(0))  # fmt: skip
+    assert plateau.interval == (0.75, 3.0)
+    logged = fit_strength(dataclasses.replace(result, score=[0.2, 1.0, 1.0, 0.4]), sets, sim,
+                          real, gaps, rungs, log_scale=True, n_boot=200,
+                          rng=np.random.default_rng(0))  # fmt: skip
+    assert logged.interval[0] < 1.0 and logged.interval[1] == pytest.approx(2.0 * 1.5**0.5, 1e-3)
     # switches pass through unchanged
     switch = candidate_result("physics.s", "physics", (None,), sets[:1], sim, real, gaps, rungs)
     assert fit_strength(switch, sets[:1], sim, real, gaps, rungs, log_scale=False, n_boot=50,
