@@ -245,14 +245,13 @@ def scored_rungs(location: dict, scoreable: Callable[[str], bool] | None = None)
     when it rejects every rung that shows the gap, the choice without it is kept.
     """
     significant = location["significant"]
-    layers = [n for n in significant if n not in PIXEL_RUNGS]
-    first = location["first_significant_layer"]
-    chosen = [n for n in PIXEL_RUNGS if n in significant] + ([first] if first else [])
-    if scoreable is None:
-        return chosen
-    kept = [n for n in PIXEL_RUNGS if n in significant and scoreable(n)]
-    kept += next(([n] for n in layers if scoreable(n)), [])
-    return kept or chosen
+    layers = [n for n in significant if n not in PIXEL_RUNGS]  # the first: as localise's
+
+    def pick(accept: Callable[[str], bool]) -> list[str]:
+        return [n for n in PIXEL_RUNGS if n in significant and accept(n)] + next(
+            ([n] for n in layers if accept(n)), [])  # fmt: skip
+
+    return (scoreable is not None and pick(scoreable)) or pick(lambda _: True)
 
 
 def score_reference(
