@@ -78,14 +78,20 @@ log = logging.getLogger(__name__)
 
 PIXEL_RUNGS = ("pixel", "motion")
 
-OPEN_SET_MIN_CLOSURE = 0.5
-"""A candidate must close at least half of the floor-corrected gap (mean classifier closure
-over the scored rungs), and beat the chance closure of a fresh nominal draw S' by
+OPEN_SET_MIN_CLOSURE = 0.6
+"""A candidate must close at least this share of the floor-corrected gap (mean classifier
+closure over the scored rungs), and beat the chance closure of a fresh nominal draw S' by
 :data:`OPEN_SET_MARGIN`, to be named the cause; else the answer is "unexplained residual".
 On the development sealed sets (seeds 3000-3010, never used in the validation) planted
-library effects closed 0.60-1.0 at their fitted strength, a fresh nominal draw -0.65-0.11,
-and the best library mimic of an out-of-library vignetting 0.64: half the gap is where the
-two families meet, and "most of the gap" is what naming a cause should mean."""
+library effects closed 0.60-1.0 at their fitted strength, a fresh nominal draw -0.65-0.11.
+It was 0.5 ("most of the gap") up to blind round 10, where two of four out-of-library
+effects were named after a look-alike that closed 0.57 (rolling shutter -> frame rate,
+kernel 0.84) and, as a coalition of three, 0.69 (barrel distortion -> defocus blur, motion
+blur and lighting variation). Recomputed on the 86 stored reports of rounds 8-10 (the
+single and coalition decisions need only the stored closures), 0.6 names none of the 12
+out-of-library effects (0.5: three) and leaves one correctly named library effect
+unexplained (sensor noise 0.56, 17016; it would now start a stacked fit). In-sample: blind
+round 11 is its test."""
 
 OPEN_SET_MARGIN = 0.15
 

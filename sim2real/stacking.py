@@ -26,9 +26,10 @@ from .diagnosis import CandidateResult, explains_together
 __all__ = ["STACK_MIN_LEADER", "stack_label", "stacked_fit"]
 
 STACK_MIN_LEADER = 0.25
-"""Least closure of the leader that starts a stacked fit: half the open-set threshold. Below
-it the leader is no part of a cause; on blind round 8 the one stacked-fit case (14021) had
-its leader at 42 %, the out-of-library sets their best candidates at 3-47 %."""
+"""Least closure of the leader that starts a stacked fit (half the open-set threshold of
+rounds 1-10). Below it the leader is no part of a cause; on blind round 8 the one
+stacked-fit case (14021) had its leader at 42 %, the out-of-library sets their best
+candidates at 3-47 %."""
 
 
 def stack_label(first: Candidate, first_value, second: Candidate, second_value) -> str:
