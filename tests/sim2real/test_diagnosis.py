@@ -424,7 +424,6 @@ def test_the_harmonic_mean_p_holds_its_level_on_dependent_tests_and_pools_weak_e
     assert harmonic_mean_p([float("nan"), 0.5]) == harmonic_mean_p([0.5])
 
 
-
 @pytest.mark.parametrize(
     ("closure", "named"),
     [(0.57, False), (OPEN_SET_MIN_CLOSURE, True), (0.95, True)],
