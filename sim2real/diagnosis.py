@@ -677,21 +677,22 @@ def explains_together(
 def rank_candidates(
     results: list[CandidateResult],
     null: CandidateResult | None,
-    gaps: dict[str, Gap],
-    rungs: list[str],
+    on: list[str],
+    *,
+    min_closure: float = OPEN_SET_MIN_CLOSURE,
 ) -> dict:
     """Ranking, open-set decision, stage verdict and confusable pairs.
 
     The top candidate is named the cause (``explained``) when its classifier closure reaches
-    the threshold and its kernel closure over ``rungs`` (the scored rungs) confirms it
-    (:data:`KERNEL_MIN_CLOSURE`); one that passes the first test and fails the second is
-    reported as a ``look_alike``.
+    the threshold (``min_closure``, or the null draw's closure plus
+    :data:`OPEN_SET_MARGIN` when higher) and its kernel closure over ``on`` (the scored
+    rungs with a kernel gap, :func:`kernel_rungs`) confirms it (:data:`KERNEL_MIN_CLOSURE`);
+    one that passes the first test and fails the second is reported as a ``look_alike``.
     """
     ranked = sorted(results, key=lambda r: r.best_score, reverse=True)
     null_score = null.best_score if null is not None else 0.0
-    threshold = max(OPEN_SET_MIN_CLOSURE, null_score + OPEN_SET_MARGIN)
+    threshold = max(min_closure, null_score + OPEN_SET_MARGIN)
     top = ranked[0] if ranked else None
-    on = kernel_rungs(gaps, rungs)
     kernel, kernel_at = (None, None) if top is None else _kernel_confirmation(top, on, threshold)
     closes = top is not None and top.best_score >= threshold
     confusable = [

@@ -49,8 +49,8 @@ from .report import contact_sheet, json_safe, write_report
 from .stacking import STACK_MIN_LEADER, stacked_fit
 
 __all__ = [
-    "Budget", "SetContext", "SetJob", "build_set", "load_run", "real_ladder", "run_diagnosis",
-    "spanning_classes",
+    "Budget", "SetContext", "SetJob", "build_set", "explained_together", "load_run",
+    "real_ladder", "run_diagnosis", "spanning_classes",
 ]  # fmt: skip
 
 log = logging.getLogger(__name__)
@@ -446,7 +446,7 @@ def run_diagnosis(
     null = candidate_result(
         "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs, before
     )
-    ranking = rank_candidates(results, null, gaps, rungs)
+    ranking = rank_candidates(results, null, kernel_rungs(gaps, rungs))
     residual = _residual_gap(ranking, plan, results, sets, real_features, budget, alpha, seed)
     probes = probe_transfer(nominal, real_features)
     timing["fit"] += time.perf_counter() - tick
@@ -458,7 +458,7 @@ def run_diagnosis(
     coalitions = _coalition_plan(plan, results, budget.shapley_top)
     build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
     shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs, before)
-    ranking = _explained_together(ranking, shapley, {r.name: r.best_score for r in results})
+    ranking = explained_together(ranking, shapley, {r.name: r.best_score for r in results})
     ranking, stacked = _stack_on_leader(
         ranking, plan, results, spec, budget,
         build=lambda specs: build([SetJob(label, s) for label, s in specs.items()]),
@@ -618,7 +618,7 @@ def _residual_gap(ranking, plan, results, sets, real, budget, alpha, seed) -> di
     }  # fmt: skip
 
 
-def _explained_together(ranking: dict, shapley: dict | None, alone: dict[str, float]) -> dict:
+def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, float]) -> dict:
     """The ranking, explained by the top candidate's best coalition when it alone is not.
 
     Two effects at once (a sealed pair, a real camera with two faults) each close only part
@@ -715,7 +715,7 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
     """Shapley values of the top candidates from the coalition sets (``None``: < 2 players).
 
     Also each coalition's kernel closure (:func:`sim2real.diagnosis.kernel_closure`), which
-    :func:`_explained_together` checks.
+    :func:`explained_together` checks.
     """
     if not coalitions:
         return None

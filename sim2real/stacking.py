@@ -8,7 +8,7 @@ from an R filmed with camera shake and motion blur (blind round 8's 14021: shake
 leader closes part of the gap but not enough, it is held at its fitted strength and every
 candidate that only re-renders (no simulation) is fitted on top of it over its grid; the
 leader is then refitted under the best partner when it re-renders too. The pair explains
-the gap under the coalition rules of :func:`sim2real.pipeline._explained_together`: it
+the gap under the coalition rules of :func:`sim2real.pipeline.explained_together`: it
 clears the open-set threshold by a margin, its kernel closure agrees, and it closes more than
 either member alone (:func:`sim2real.diagnosis.explains_together`).
 

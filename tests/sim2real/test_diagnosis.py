@@ -168,7 +168,7 @@ def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
         [_shifted(sim, "motion", _shift([0, 1], a)) for a in sizes], sim, real, gaps, rungs,
     )  # fmt: skip
     null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
-    ranking = rank_candidates([wrong, physics, right], null, gaps, rungs)
+    ranking = rank_candidates([wrong, physics, right], null, kernel_rungs(gaps, rungs))
     assert ranking["ranking"][0] == "visual.right"
     assert ranking["explained"]
     assert right.best_strength == 1.5
@@ -275,7 +275,7 @@ def test_an_effect_outside_the_library_gives_the_open_set_answer(planted):
         for d in (0, 1, 2)
     ]
     null = candidate_result("S'", "null", (None,), [_domain(8)], sim, real, gaps, rungs)
-    ranking = rank_candidates(results, null, gaps, rungs)
+    ranking = rank_candidates(results, null, kernel_rungs(gaps, rungs))
     assert not ranking["explained"]
     assert ranking["threshold"] >= 0.3
 
@@ -310,16 +310,16 @@ def test_a_look_alike_that_the_classifier_cannot_tell_apart_fails_the_kernel_che
     assert kernel_closure(right, on) > 0.8
     assert alike.closure["pixel"][alike.best] < 0.0  # it moves the pixels further from R
     assert kernel_closure(alike, on) < KERNEL_MIN_CLOSURE
-    ranking = rank_candidates([alike, null], null, gaps, rungs)
+    ranking = rank_candidates([alike, null], null, kernel_rungs(gaps, rungs))
     assert ranking["top"] == "visual.alike"
     assert not ranking["explained"] and ranking["look_alike"]
     assert ranking["kernel_closure"] == kernel_closure(alike, on)
-    ranking = rank_candidates([right, null], null, gaps, rungs)
+    ranking = rank_candidates([right, null], null, kernel_rungs(gaps, rungs))
     assert ranking["top"] == "visual.right"
     assert ranking["explained"] and not ranking["look_alike"]
     # with no rung above its MMD² floor the kernel cannot refute: the classifier decides
     assert kernel_closure(alike, []) is None
-    assert rank_candidates([right], null, gaps, [])["kernel_closure"] is None
+    assert rank_candidates([right], null, [])["kernel_closure"] is None
 
 
 def test_the_kernel_check_confirms_at_a_strength_the_classifier_cannot_tell_from_the_best(
@@ -341,18 +341,18 @@ def test_the_kernel_check_confirms_at_a_strength_the_classifier_cannot_tell_from
     assert noisy.best_strength == 3.0
     assert kernel_closure(noisy, on) < KERNEL_MIN_CLOSURE  # overshot: the distance stays
     assert kernel_strengths(noisy, 0.5) == [0, 1, 2]
-    ranking = rank_candidates([noisy, null], null, gaps, rungs)
+    ranking = rank_candidates([noisy, null], null, kernel_rungs(gaps, rungs))
     assert ranking["explained"] and not ranking["look_alike"]
     assert ranking["kernel_strength"] == 1.5
     assert ranking["kernel_closure"] == kernel_closure(right, on)
     # the classifier tells 1.5 from 3.0 (outside the interval): no second chance
     told_apart = dataclasses.replace(noisy, fit_interval=(2.5, 3.0))
-    ranking = rank_candidates([told_apart, null], null, gaps, rungs)
+    ranking = rank_candidates([told_apart, null], null, kernel_rungs(gaps, rungs))
     assert ranking["look_alike"] and ranking["kernel_strength"] == 3.0
     # nor at a strength whose classifier closure stays under the threshold
     weak = dataclasses.replace(noisy, score=[0.2, 0.3, 0.9])
     assert kernel_strengths(weak, 0.5) == [2]
-    assert rank_candidates([weak, null], null, gaps, rungs)["look_alike"]
+    assert rank_candidates([weak, null], null, kernel_rungs(gaps, rungs))["look_alike"]
 
 
 def test_probes_transfer_only_where_the_real_labels_follow_the_features():
@@ -436,7 +436,7 @@ def test_a_cause_must_close_the_open_set_threshold_of_the_gap(closure, named):
         return CandidateResult(name, "camera", (1.0,), {}, {}, [score])
 
     null = fit("S'", -0.2)
-    ranking = rank_candidates([fit("visual.frame_rate", closure), fit("b", 0.1)], null, {}, [])
+    ranking = rank_candidates([fit("visual.frame_rate", closure), fit("b", 0.1)], null, [])
     assert ranking["threshold"] == OPEN_SET_MIN_CLOSURE == 0.6
     assert ranking["top"] == "visual.frame_rate"
     assert ranking["kernel_closure"] is None  # no rung above its MMD² floor: cannot refute

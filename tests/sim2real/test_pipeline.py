@@ -153,26 +153,26 @@ def test_drawn_answers_cover_single_pair_and_open_kinds():
 
 
 def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_all_add():
-    from sim2real.pipeline import _explained_together
+    from sim2real.pipeline import explained_together
 
     ranking = {"explained": False, "top": "a", "threshold": 0.5, "look_alike": True}
     alone = {"a": 0.3, "b": 0.2, "c": 0.2}
     shapley = {"coalitions": {"a+b": 0.8, "a+c": 0.7, "b+c": 0.9, "a+b+c": 0.95},
                "kernel_closure": {"a+b": 0.1, "a+c": 0.6, "b+c": 1.0, "a+b+c": 0.9}}  # fmt: skip
-    out = _explained_together(ranking, shapley, alone)
+    out = explained_together(ranking, shapley, alone)
     # a+b closes more of the classifier gap but not of the kernel distance; b+c lacks the
     # top; a+b+c passes both, but without a it closes 0.9 of the 0.95: a adds, so it wins
     assert out["explained"] and out["explained_by"] == ["a", "b", "c"] and not out["look_alike"]
     assert out["explained_by_kernel_closure"] == 0.9
     shapley["coalitions"]["a+b+c"] = 0.85  # now a lowers b+c's 0.9: a rides along
-    out = _explained_together(ranking, shapley, alone)
+    out = explained_together(ranking, shapley, alone)
     assert out["explained_by"] == ["a", "c"] and out["explained_by_kernel_closure"] == 0.6
     shapley["kernel_closure"]["a+c"] = 0.4
-    assert _explained_together(ranking, shapley, alone) == ranking
+    assert explained_together(ranking, shapley, alone) == ranking
     shapley["kernel_closure"]["a+c"] = None  # no rung above its MMD² floor: cannot refute
-    assert _explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
+    assert explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
     shapley["coalitions"]["a+c"] = 0.6  # above the threshold, but not by the margin
-    assert _explained_together(ranking, shapley, alone) == ranking
+    assert explained_together(ranking, shapley, alone) == ranking
 
 
 def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_path):
