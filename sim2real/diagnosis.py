@@ -366,6 +366,28 @@ class CandidateResult:
         )  # fmt: skip
         return out
 
+    @classmethod
+    def from_json(cls, data: dict) -> CandidateResult:
+        """The result :meth:`to_json` wrote (without the out-of-fold scores).
+
+        A stored report writes NaN as ``null``; it is read back as NaN.
+        """
+
+        def numbers(values: list) -> list[float]:
+            return [math.nan if v is None else v for v in values]
+
+        def per_rung(values: dict) -> dict[str, list[float]]:
+            return {rung: numbers(v) for rung, v in values.items()}
+
+        interval = data.get("fit_interval")
+        return cls(
+            name=data["name"], stage=data["stage"], strengths=tuple(data["strengths"]),
+            mmd2=per_rung(data["mmd2"]), closure=per_rung(data["closure"]),
+            score=numbers(data["score"]), closure_auc=per_rung(data.get("closure_auc", {})),
+            fitted=data.get("fitted"),
+            fit_interval=None if interval is None else tuple(interval),
+        )  # fmt: skip
+
 
 AUC_REPEATS = 2
 """Grouped-CV repetitions (other fold draws) averaged in a candidate's classifier closure."""

@@ -46,7 +46,7 @@ from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
 from .network import adapt_batchnorm, layer_features
 from .report import contact_sheet, json_safe, write_report
-from .stacking import STACK_MIN_LEADER, stacked_fit
+from .stacking import STACK_MIN_LEADER, explained_by_stack, stacked_fit
 
 __all__ = [
     "Budget", "SetContext", "SetJob", "build_set", "explained_together", "load_run",
@@ -682,11 +682,7 @@ def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score
         kernel=lambda r: kernel_closure(r, ranking["kernel_rungs"]),
         threshold=ranking["threshold"],
     )  # fmt: skip
-    if not fit["explained"]:
-        return ranking, fit
-    return {**ranking, "explained": True, "look_alike": False,
-            "explained_by": [top, fit["best"]], "explained_by_score": fit["score"],
-            "explained_by_kernel_closure": fit["kernel_closure"]}, fit  # fmt: skip
+    return (explained_by_stack(ranking, fit) if fit["explained"] else ranking), fit
 
 
 def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:

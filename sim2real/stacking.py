@@ -23,7 +23,7 @@ from collections.abc import Callable
 from .candidates import Candidate
 from .diagnosis import CandidateResult, explains_together
 
-__all__ = ["STACK_MIN_LEADER", "stack_label", "stacked_fit"]
+__all__ = ["STACK_MIN_LEADER", "explained_by_stack", "stack_label", "stacked_fit"]
 
 STACK_MIN_LEADER = 0.25
 """Least closure of the leader that starts a stacked fit (half the open-set threshold of
@@ -114,3 +114,10 @@ def stacked_fit(
         pair.best_score, closes, threshold, [leader_result.best_score, alone]
     )
     return out
+
+
+def explained_by_stack(ranking: dict, fit: dict) -> dict:
+    """``ranking`` with its gap explained by a stacked ``fit``'s pair (the leader named first)."""
+    return {**ranking, "explained": True, "look_alike": False,
+            "explained_by": [ranking["top"], fit["best"]], "explained_by_score": fit["score"],
+            "explained_by_kernel_closure": fit["kernel_closure"]}  # fmt: skip

@@ -19,7 +19,9 @@ from datasets.spec import DatasetSpec, SizePreset
 from models.material_classifier import MaterialClassifierModule
 from render.camera import CameraSpec
 from sim2real.candidates import candidate_library
+from sim2real.diagnosis import CandidateResult, rank_candidates
 from sim2real.pipeline import Budget, run_diagnosis
+from sim2real.rescore import decide_again
 from sim2real.seal import draw_answer, seal_set
 from simulator.cloth.rollout import SimSettings
 from simulator.cloth.scenes import ScenarioWind
@@ -211,6 +213,8 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert "What the gap test can see" in (out / "report.md").read_text()
     saved = json.loads((out / "report.json").read_text())
     assert saved["ranking"]["top"] == "visual.sensor_noise"
+    again = decide_again(saved)  # the stored closures, decided again by the same rules
+    assert again.pop("replayed") and again == saved["ranking"]
     assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
     assert "With visual.sensor_noise added at" in (out / "report.md").read_text().split("\n")[2]
 
@@ -373,6 +377,14 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2
 
 
+def _merged(out: Path, report: dict, answer: Path) -> None:
+    """A merged validation folder holding set 1's finished report and its answer."""
+    (out / "reports" / "set1").mkdir(parents=True)
+    (out / "reports" / "set1" / "report.json").write_text(json.dumps(report))
+    (out / "answers").mkdir()
+    (out / "answers" / "set1.json").write_text(answer.read_text())
+
+
 def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_path, capsys):
     from sim2real.validate import main as validate
 
@@ -384,10 +396,7 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
                                                "strength_interval": [4.0, 8.0]}},
         "scored_rungs": ["pixel"], "residual_stage": "",
     }  # fmt: skip
-    (out / "reports" / "set1").mkdir(parents=True)
-    (out / "reports" / "set1" / "report.json").write_text(json.dumps(report))
-    (out / "answers").mkdir()
-    (out / "answers" / "set1.json").write_text(world["answer"].read_text())
+    _merged(out, report, world["answer"])
     args = ["--kinds", "single:2", "--first-seed", "1", "--sets", "0", "--finished-only",
             "--run", str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]
     validate(args)
@@ -401,3 +410,35 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
         validate([*args[:-1], str(tmp_path / "empty")])
     assert stop.value.code == 2
     assert "no finished sealed set" in capsys.readouterr().err
+
+
+def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_path, capsys):
+    from sim2real.validate import main as validate
+
+    root, out = world["root"], tmp_path / "merged"
+    fit = CandidateResult("visual.sensor_noise", "camera", (2.0, 6.0), {"pixel": [0.1, 0.0]},
+                          {"pixel": [0.4, 0.9]}, [0.4, 0.9])  # fmt: skip
+    null = CandidateResult("S'", "null", (None,), {"pixel": [0.1]}, {"pixel": [0.0]}, [0.0])
+    report = {
+        "candidates": {fit.name: {**fit.to_json(), "best": fit.best}}, "null": null.to_json(),
+        "ranking": rank_candidates([fit], null, ["pixel"]), "shapley": None, "stacked": None,
+        "scored_rungs": ["pixel"], "residual_stage": "camera",
+    }  # fmt: skip
+    _merged(out, report, world["answer"])
+    args = ["--kinds", "single:1", "--first-seed", "1", "--sets", "0", "--rescore",
+            "--run", str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]
+    validate(args)
+    rows = json.loads((out / "rescored.json").read_text())["sets"]
+    assert rows[0]["top1"] and rows[0]["replayed"]
+    validate([*args, "--open-set-threshold", "0.95"])
+    saved = json.loads((out / "rescored.json").read_text())
+    assert saved["summary"]["open_set_threshold"] == 0.95
+    assert saved["sets"][0]["predicted"] == "unexplained" and not saved["sets"][0]["top1"]
+    assert "open-set threshold 0.95" in (out / "rescored.md").read_text()
+    assert (out / "confusion_rescored.png").is_file()
+    assert not (out / "validation.md").exists() and not (out / "sets").exists()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        validate([*args, "--open-set-threshold", "1.5"])
+    assert stop.value.code == 2
+    assert "--open-set-threshold must be in (0, 1]" in capsys.readouterr().err

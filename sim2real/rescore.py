@@ -1,0 +1,61 @@
+"""Decide a stored diagnosis again from its measured closures, without building any set.
+
+A diagnosis measures (every candidate's closures, the null draw's, the coalitions' and the
+stacked fit's) and then decides (the open-set threshold, the kernel check, the coalition
+and stacked-fit rules). :func:`decide_again` reruns only the second part on a stored
+``report.json``, with today's rules or another open-set threshold, so that a change of a
+threshold can be checked on every stored sealed set in seconds and by anyone
+(``python -m sim2real.validate --rescore``). Run on a report the same code wrote, it gives
+back the stored ranking exactly.
+
+One decision cannot be replayed: the stacked fit runs only when nothing else explains the
+gap and the leader closes at least :data:`~sim2real.stacking.STACK_MIN_LEADER`. When the
+rules now call for a stacked fit that the stored run never made (it had named a cause
+before), the decision is left unexplained and marked ``"replayed": False``: rerun the
+diagnosis to know.
+"""
+
+from __future__ import annotations
+
+from .diagnosis import (
+    OPEN_SET_MIN_CLOSURE,
+    CandidateResult,
+    explains_together,
+    rank_candidates,
+)
+from .pipeline import explained_together
+from .stacking import STACK_MIN_LEADER, explained_by_stack
+
+__all__ = ["decide_again"]
+
+
+def decide_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> dict:
+    """The ranking of a stored ``report`` decided again at open-set threshold ``min_closure``.
+
+    Returns the ranking as :func:`sim2real.pipeline.run_diagnosis` stores it, plus
+    ``"replayed"``: ``False`` when the decision needs a stacked fit that the stored run did
+    not make (see the module docstring).
+    """
+    stored = report["ranking"]["ranking"]  # ties keep their stored order (a stable sort)
+    order = sorted(report["candidates"], key=lambda n: stored.index(n) if n in stored else 0)
+    results = [CandidateResult.from_json(report["candidates"][n]) for n in order]
+    null = CandidateResult.from_json(report["null"]) if report.get("null") else None
+    ranking = rank_candidates(
+        results, null, report["ranking"]["kernel_rungs"], min_closure=min_closure
+    )
+    alone = {r.name: r.best_score for r in results}
+    ranking = explained_together(ranking, report.get("shapley"), alone)
+    ranking["replayed"] = True
+    top = ranking["top"]
+    if ranking["explained"] or top is None or alone[top] < STACK_MIN_LEADER:
+        return ranking
+    stacked = report.get("stacked")
+    if stacked is None or stacked["leader"] != top:
+        ranking["replayed"] = False
+        return ranking
+    if stacked["best"] is not None and explains_together(
+        stacked["score"], stacked["kernel_closure"], ranking["threshold"],
+        [alone[top], alone[stacked["best"]]],
+    ):  # fmt: skip
+        return explained_by_stack(ranking, stacked)
+    return ranking
