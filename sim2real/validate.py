@@ -378,6 +378,10 @@ def main(argv: list[str] | None = None) -> None:
         print(f"error: --open-set-threshold must be in (0, 1], got {args.open_set_threshold}",
               file=sys.stderr)  # fmt: skip
         sys.exit(2)
+    if args.open_set_threshold != OPEN_SET_MIN_CLOSURE and not args.rescore:
+        print("error: --open-set-threshold applies only with --rescore (a blind run uses "
+              "today's rules)", file=sys.stderr)  # fmt: skip
+        sys.exit(2)
     args.finished_only = args.finished_only or args.rescore
     out = Path(args.out)
     try:

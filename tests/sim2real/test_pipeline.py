@@ -442,3 +442,8 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
         validate([*args, "--open-set-threshold", "1.5"])
     assert stop.value.code == 2
     assert "--open-set-threshold must be in (0, 1]" in capsys.readouterr().err
+    blind = [a for a in args if a != "--rescore"]
+    with pytest.raises(SystemExit) as stop:
+        validate([*blind, "--finished-only", "--open-set-threshold", "0.5"])
+    assert stop.value.code == 2
+    assert "applies only with --rescore" in capsys.readouterr().err
