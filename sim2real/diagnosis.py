@@ -48,6 +48,7 @@ from .stats import (
 
 __all__ = [
     "KERNEL_MIN_CLOSURE",
+    "NEUTRAL_RULE",
     "OPEN_SET_MARGIN",
     "OPEN_SET_MIN_CLOSURE",
     "RESIDUAL_STAGE_MIN_CLOSURE",
@@ -116,6 +117,23 @@ may confirm it (:func:`kernel_strengths`). In blind round 8 a true lighting vari
 (set 14014) closed 0.83 of the classifier gap at 0.32 and 0.84 at the grid's top, 0.6 (its
 interval spanned the whole grid); the kernel distance was closed at 0.32 (1.0) and widened at
 0.6 (-1.0), so the true effect was reported as a look-alike."""
+
+NEUTRAL_RULE = (
+    "a candidate whose strength interval holds its neutral value is not named: the data "
+    "cannot tell it from its absence"
+)
+"""Why a top candidate may close the gap and still not be named (:attr:`CandidateResult.
+holds_neutral`), alone, as a coalition's leader or under a stacked partner.
+
+A cause must be told from its own absence. Where the neutral strength lies inside a
+candidate's range (a scene field's nominal value, a frame-rate ratio of 1), an interval that
+holds it says that the classifier closures at the fitted strength and at "no change" cannot
+be told apart: whatever the candidate closes, it closes by the other changes its grid makes
+around the fit (or by chance), not by the effect. In blind round 11 wind-yaw jitter was named
+twice this way, each time wrongly: on internal damping 0.0038 (18004, closure 1.0 at 2.5°,
+interval 0-22.8° around the nominal 15°) and, through a coalition, on motion blur 0.45 (18015,
+interval 14.7-30.2°). Decided again over the stored reports of rounds 8-11 (in-sample), the
+rule changed those two answers (to "unexplained") and no other. Blind test: round 12."""
 
 CONFUSABLE_WITHIN = 0.1
 """Candidates whose scores lie within this of the best are reported as confusable with it."""
@@ -316,6 +334,9 @@ class CandidateResult:
     """Continuous strength fit (:func:`fit_strength`); ``None``: not fitted (switch, choice)."""
     fit_interval: tuple[float, float] | None = None
     """95 % group-bootstrap interval of :attr:`fitted`."""
+    neutral: float | None = None
+    """The strength at which the candidate changes nothing, when it lies inside or at the
+    edge of its range (:attr:`sim2real.candidates.Candidate.neutral`); else ``None``."""
     scores_oof: dict = dataclasses.field(default=None, repr=False, compare=False)
     """Rung -> per strength the classifier's out-of-fold scores (repeats, n + m), kept for
     :func:`fit_strength`'s bootstrap; not part of the JSON."""
@@ -352,6 +373,15 @@ class CandidateResult:
         return (min(values), max(values)) if values else (None, None)
 
     @property
+    def holds_neutral(self) -> bool:
+        """Whether :attr:`interval` holds :attr:`neutral` (:data:`NEUTRAL_RULE`).
+
+        The data then cannot tell the candidate from its absence.
+        """
+        low, high = self.interval
+        return self.neutral is not None and low is not None and low <= self.neutral <= high
+
+    @property
     def fitted_strength(self):
         """The continuous fit when there is one, else the best grid strength."""
         return self.best_strength if self.fitted is None else self.fitted
@@ -386,6 +416,7 @@ class CandidateResult:
             score=numbers(data["score"]), closure_auc=per_rung(data.get("closure_auc", {})),
             fitted=data.get("fitted"),
             fit_interval=None if interval is None else tuple(interval),
+            neutral=data.get("neutral"),
         )  # fmt: skip
 
 
@@ -483,6 +514,8 @@ def candidate_result(
     gaps: dict[str, Gap],
     rungs: list[str],
     before: ReferenceScores | None = None,
+    *,
+    neutral: float | None = None,
 ) -> CandidateResult:
     """Score the candidate's sets (one per strength) against R.
 
@@ -492,7 +525,8 @@ def candidate_result(
     tells candidates apart where the MMD² barely sees the gap; a candidate that adds a
     difference R does not have is caught by it too. ``before``: :func:`reference_scores`
     (computed here when not given); on saturated rungs the classifier closure is that of
-    the divergence (:data:`SATURATED_AUC`).
+    the divergence (:data:`SATURATED_AUC`). ``neutral``: the candidate's neutral strength
+    (:attr:`CandidateResult.neutral`).
     """
     before = before if before is not None else reference_scores(sim, real, rungs)
     mmd2 = {r: [] for r in gaps}
@@ -513,7 +547,7 @@ def candidate_result(
         for i in range(len(sets))
     ]
     return CandidateResult(name, stage, tuple(strengths), mmd2, closure, score,
-                           closure_auc=closure_auc, scores_oof=oof)  # fmt: skip
+                           closure_auc=closure_auc, neutral=neutral, scores_oof=oof)  # fmt: skip
 
 
 def _mmd2_floor(gap: Gap) -> float:
@@ -710,6 +744,8 @@ def rank_candidates(
     :data:`OPEN_SET_MARGIN` when higher) and its kernel closure over ``on`` (the scored
     rungs with a kernel gap, :func:`kernel_rungs`) confirms it (:data:`KERNEL_MIN_CLOSURE`);
     one that passes the first test and fails the second is reported as a ``look_alike``.
+    A top candidate whose strength interval holds its neutral value is never named
+    (``neutral_in_interval``, :data:`NEUTRAL_RULE`).
     """
     ranked = sorted(results, key=lambda r: r.best_score, reverse=True)
     null_score = null.best_score if null is not None else 0.0
@@ -717,6 +753,7 @@ def rank_candidates(
     top = ranked[0] if ranked else None
     kernel, kernel_at = (None, None) if top is None else _kernel_confirmation(top, on, threshold)
     closes = top is not None and top.best_score >= threshold
+    indistinct = top is not None and top.holds_neutral
     confusable = [
         r.name for r in ranked[1:]
         if top is not None and r.best_score >= top.best_score - CONFUSABLE_WITHIN
@@ -729,13 +766,14 @@ def rank_candidates(
         "ranking": [r.name for r in ranked],
         "threshold": threshold,
         "null_score": null_score,
-        "explained": closes and agrees(kernel),
+        "explained": closes and agrees(kernel) and not indistinct,
         "top": None if top is None else top.name,
         "kernel_rungs": on,
         "kernel_closure": kernel,
         "kernel_strength": None if top is None else top.strengths[kernel_at],
         "kernel_threshold": KERNEL_MIN_CLOSURE,
         "look_alike": closes and not agrees(kernel),
+        "neutral_in_interval": indistinct,
         "confusable_with_top": confusable,
         "stage_scores": stages,
     }

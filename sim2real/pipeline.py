@@ -403,6 +403,7 @@ def run_diagnosis(
                 gaps,
                 rungs,
                 before,
+                neutral=c.neutral,
             )
             for c, values in plan
         ]
@@ -637,7 +638,8 @@ def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, flo
     Over blind rounds 1-3 the one coalition that named a true pair closed 95 % (7023); the
     look-alike coalitions that passed the other conditions closed 51 and 56 % (9026, 9027).
     """
-    if ranking["explained"] or not shapley or ranking["top"] is None:
+    if (ranking["explained"] or not shapley or ranking["top"] is None
+            or ranking.get("neutral_in_interval")):  # fmt: skip
         return ranking
     measured = {frozenset([n]): v for n, v in alone.items()}
     measured.update({frozenset(k.split("+")): v for k, v in shapley["coalitions"].items()})
@@ -668,7 +670,7 @@ def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score
     ``None``).
     """
     top = ranking["top"]
-    if ranking["explained"] or top is None:
+    if ranking["explained"] or top is None or ranking.get("neutral_in_interval"):
         return ranking, None
     i = next(i for i, r in enumerate(results) if r.name == top)
     if results[i].best_score < STACK_MIN_LEADER:

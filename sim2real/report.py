@@ -95,6 +95,15 @@ def verdict(result: dict) -> str:
             parts.append(
                 "It cannot be told apart from " + ", ".join(ranking["confusable_with_top"]) + "."
             )
+    elif ranking.get("neutral_in_interval"):
+        top = result["candidates"][ranking["top"]]
+        low, high = top["strength_interval"]
+        parts.append(
+            f"{ranking['top']} closes {100 * top['best_score']:.0f} % of the classifier gap, "
+            f"but its strength interval {_ci((low, high))} holds its neutral value "
+            f"{_fmt(top['neutral'])}: the data cannot tell it from its absence, so it is not "
+            f"named. Unexplained residual at stage {result['residual_stage']}."
+        )
     elif ranking.get("look_alike"):
         top = result["candidates"][ranking["top"]]
         parts.append(

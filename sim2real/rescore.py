@@ -47,7 +47,8 @@ def decide_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> 
     ranking = explained_together(ranking, report.get("shapley"), alone)
     ranking["replayed"] = True
     top = ranking["top"]
-    if ranking["explained"] or top is None or alone[top] < STACK_MIN_LEADER:
+    if (ranking["explained"] or top is None or ranking["neutral_in_interval"]
+            or alone[top] < STACK_MIN_LEADER):  # fmt: skip
         return ranking
     stacked = report.get("stacked")
     if stacked is None or stacked["leader"] != top:

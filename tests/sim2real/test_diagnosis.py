@@ -2,6 +2,7 @@
 
 import dataclasses
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -442,3 +443,46 @@ def test_a_cause_must_close_the_open_set_threshold_of_the_gap(closure, named):
     assert ranking["kernel_closure"] is None  # no rung above its MMD² floor: cannot refute
     assert ranking["explained"] is named
     assert ranking["look_alike"] is False
+
+
+@pytest.mark.parametrize(
+    ("interval", "neutral", "named"),
+    [((0.0, 22.8), 15.0, False), ((14.7, 30.2), 15.0, False), ((15.0, 19.0), 15.0, False),
+     ((2.0, 10.0), 15.0, True), ((0.01, 0.11), None, True)],
+)  # fmt: skip
+def test_a_candidate_whose_interval_holds_its_neutral_value_is_not_named(
+    interval, neutral, named
+):
+    # Blind round 11, sets 18004 and 18015: wind-yaw jitter closed the gap at a fitted 2.5°
+    # and 19°, with intervals that held the scene's nominal 15°: named, wrongly, both times.
+    top = CandidateResult(
+        "scene.wind_yaw_jitter_deg", "scene", (2.5, 15.0, 30.0), {}, {}, [0.9, 0.4, 0.2],
+        fitted=2.5, fit_interval=interval, neutral=neutral,
+    )  # fmt: skip
+    null = CandidateResult("S'", "null", (None,), {}, {}, [-0.1])
+    ranking = rank_candidates([top, null], null, [])
+    assert top.holds_neutral is not named
+    assert ranking["top"] == top.name and ranking["explained"] is named
+    assert ranking["neutral_in_interval"] is not named and not ranking["look_alike"]
+    back = CandidateResult.from_json(json.loads(json.dumps(top.to_json())))
+    assert back.neutral == neutral and back.holds_neutral is top.holds_neutral
+
+
+def test_the_verdict_says_why_a_candidate_that_closes_the_gap_is_not_named():
+    from sim2real.report import verdict
+
+    ranking = {"explained": False, "look_alike": False, "neutral_in_interval": True,
+               "top": "scene.wind_yaw_jitter_deg", "threshold": 0.6}  # fmt: skip
+    result = {
+        "location": {"significant": ["motion"], "gap_p": 0.01, "alpha": 0.05,
+                     "first_significant_layer": None},
+        "rungs": {"motion": {"corrected_auc": 0.2}}, "ranking": ranking,
+        "candidates": {"scene.wind_yaw_jitter_deg": {
+            "stage": "scene", "best_score": 0.93, "strength_interval": [0.0, 22.8],
+            "neutral": 15.0}},
+        "residual_stage": "physics or scene",
+    }  # fmt: skip
+    text = verdict(result)
+    assert "scene.wind_yaw_jitter_deg closes 93 % of the classifier gap" in text
+    assert "[0.000, 22.800] holds its neutral value 15.000" in text
+    assert "Unexplained residual at stage physics or scene." in text

@@ -175,6 +175,10 @@ def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_al
     assert explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
     shapley["coalitions"]["a+c"] = 0.6  # above the threshold, but not by the margin
     assert explained_together(ranking, shapley, alone) == ranking
+    shapley["coalitions"]["a+c"] = 0.9  # passes again, unless a cannot be told from its absence
+    assert explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
+    indistinct = {**ranking, "neutral_in_interval": True}
+    assert explained_together(indistinct, shapley, alone) == indistinct
 
 
 def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_path):
