@@ -97,13 +97,20 @@ def verdict(result: dict) -> str:
             )
     elif ranking.get("neutral_in_interval"):
         top = result["candidates"][ranking["top"]]
-        low, high = top["strength_interval"]
-        parts.append(
-            f"{ranking['top']} closes {100 * top['best_score']:.0f} % of the classifier gap, "
-            f"but its strength interval {_ci((low, high))} holds its neutral value "
-            f"{_fmt(top['neutral'])}: the data cannot tell it from its absence, so it is not "
-            f"named. Unexplained residual at stage {result['residual_stage']}."
-        )
+        held = (f"its strength interval {_ci(tuple(top['strength_interval']))} holds its "
+                f"neutral value {_fmt(top['neutral'])}")  # fmt: skip
+        if top["best_score"] >= ranking["threshold"]:
+            parts.append(
+                f"{ranking['top']} closes {100 * top['best_score']:.0f} % of the classifier "
+                f"gap, but {held}: the data cannot tell it from its absence, so it is not named."
+            )
+        else:  # the low closure is the reason; the neutral value also bars its coalitions
+            parts.append(
+                f"{ranking['top']} leads with {100 * top['best_score']:.0f} % (threshold "
+                f"{100 * ranking['threshold']:.0f} %) and {held}, so neither it nor a "
+                "coalition it leads is named."
+            )
+        parts.append(f"Unexplained residual at stage {result['residual_stage']}.")
     elif ranking.get("look_alike"):
         top = result["candidates"][ranking["top"]]
         parts.append(

@@ -486,3 +486,11 @@ def test_the_verdict_says_why_a_candidate_that_closes_the_gap_is_not_named():
     assert "scene.wind_yaw_jitter_deg closes 93 % of the classifier gap" in text
     assert "[0.000, 22.800] holds its neutral value 15.000" in text
     assert "Unexplained residual at stage physics or scene." in text
+    # A flagged top that closes little: the low closure is the reason, and its coalitions
+    # are barred by the neutral value (blind round 11, set 18015).
+    result["candidates"]["scene.wind_yaw_jitter_deg"]["best_score"] = 0.41
+    text = verdict(result)
+    assert "scene.wind_yaw_jitter_deg leads with 41 % (threshold 60 %)" in text
+    assert "neither it nor a coalition it leads is named" in text
+    assert "cannot tell it from its absence" not in text
+    assert "Unexplained residual at stage physics or scene." in text
