@@ -29,7 +29,7 @@ __all__ = ["FEATURE_VERSION", "LadderFeatures", "content_key", "file_digest", "l
 
 log = logging.getLogger(__name__)
 
-FEATURE_VERSION = 2
+FEATURE_VERSION = 3
 """Bump when a feature's definition changes (invalidates every cached feature file)."""
 
 _LABELS = ("groups", "class_id", "stiffness", "density")

@@ -55,7 +55,7 @@ def test_statistics_are_named_medians_and_spreads():
     sim = _domain(0)
     stats = clip_statistics(sim)
     names = statistic_names()
-    assert stats.shape == (1, len(names)) == (1, 2 * (35 + 36))
+    assert stats.shape == (1, len(names)) == (1, 2 * (35 + 56))
     assert names[NOISE] == "median(pixel.noise_sigma_luma)"
     column = sim.rungs["pixel"][:, NOISE]
     assert stats[0, NOISE] == pytest.approx(np.quantile(column, 0.5, method="inverted_cdf"))

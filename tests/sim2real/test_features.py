@@ -283,6 +283,44 @@ def test_camera_shake_raises_global_motion_std():
     assert shaky[MOT["flow_roughness"]] > steady[MOT["flow_roughness"]] + 0.5
 
 
+def blend_with_next(clip, weight):
+    """Every row shows ``(1 - weight)`` of its frame and ``weight`` of the next (the last
+    frame repeats): a frame-rate-like temporal resampling that treats all rows alike."""
+    values = clip.astype(np.float32)
+    later = np.concatenate([values[1:], values[-1:]])
+    return np.clip(np.rint((1 - weight) * values + weight * later), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize(("dx", "dy"), [(2, 0), (0, 2), (1, 1)])
+def test_row_timing_tells_a_rolling_shutter_from_a_uniform_blend(dx, dy):
+    from sim2real.seal import _apply_open_set
+
+    # A rolling shutter (the seal's: row y blends with the next frame at weight
+    # strength * y / H) low-passes the bottom rows in time more than the top ones; the same
+    # blend on every row does not. Averaged over four textures (one texture's thirds differ
+    # by chance). Measured: rolling shutter -0.17 to -0.32, uniform blend within 0.05.
+    hi = [MOT["rows_bottom_minus_top_tpsd_log_0.25-0.375cpf"],
+          MOT["rows_bottom_minus_top_tpsd_log_0.375-0.5cpf"]]  # fmt: skip
+    shifts = {}
+    for seed in range(4):
+        clip = noisy(moving_clip(dx, dy, frames=16, seed=seed), 1)
+        base = motion_features(clip, BOX)[hi].mean()
+        variants = {
+            "rolling 0.9": _apply_open_set(clip, "rolling_shutter", 0.9),
+            "rolling 0.5": _apply_open_set(clip, "rolling_shutter", 0.5),
+            "uniform 0.5": blend_with_next(clip, 0.5),
+            "uniform 0.2": blend_with_next(clip, 0.2),
+        }
+        for name, variant in variants.items():
+            shift = motion_features(variant, BOX)[hi].mean() - base
+            shifts[name] = shifts.get(name, 0.0) + shift / 4
+    for name, shift in shifts.items():
+        if name.startswith("rolling"):
+            assert shift < -0.12, (name, shifts)
+        else:
+            assert abs(shift) < 0.08, (name, shifts)
+
+
 # --- input checks and the batch helper -------------------------------------------------------
 
 
