@@ -14,6 +14,9 @@ writes the table of every finished set there without sealing or diagnosing anyth
 measured closures (:mod:`sim2real.rescore`), with today's rules or another
 ``--open-set-threshold``, and writes ``rescored.md``, ``rescored.json`` and
 ``confusion_rescored.png`` beside the blind table, which it leaves alone.
+``--scored FILE`` carries a plan over machines: the rows of an earlier ``validation.json``
+stand for the sets it scored that are not finished under ``--out``, so those are neither
+sealed nor diagnosed again and the table covers the whole plan.
 """
 
 from __future__ import annotations
@@ -310,6 +313,32 @@ def set_plan(kinds: str | None, names: list[str], first_seed: int) -> list[tuple
     return plan
 
 
+def scored_rows(paths: list[str], plan: list[tuple]) -> dict[int, dict]:
+    """Rows of earlier ``validation.json`` files by seed, checked against the plan's kinds.
+
+    A row whose seed the plan holds with another kind belongs to another plan; mixing them
+    would score sets that were never drawn, so it is refused.
+    """
+    kinds = {seed: kind for seed, kind, _ in plan}
+    rows = {}
+    for path in paths:
+        try:
+            sets = json.loads(Path(path).read_text())["sets"]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise ValueError(f"--scored: {path} is not a validation.json ({err})") from None
+        for row in sets:
+            seed = row.get("seed")
+            if seed not in kinds:
+                continue
+            if kinds[seed] is not None and row.get("kind") != kinds[seed]:
+                raise ValueError(
+                    f"--scored: {path} scored set {seed} as kind {row.get('kind')!r}, the "
+                    f"plan has {kinds[seed]!r}; pass the same --kinds and --first-seed"
+                )
+            rows[seed] = row
+    return rows
+
+
 def _diagnosed(out_dir: Path, common: dict) -> dict:
     """The diagnosis of one sealed set: its finished report, else a fresh run.
 
@@ -361,6 +390,13 @@ def main(argv: list[str] | None = None) -> None:
         "closures first (today's rules, or --open-set-threshold); writes rescored.*",
     )
     parser.add_argument(
+        "--scored",
+        action="append",
+        default=[],
+        help="validation.json of an earlier run of the same plan (repeatable): its rows stand "
+        "for the sets that are not finished under --out (a plan carried over machines)",
+    )
+    parser.add_argument(
         "--open-set-threshold",
         type=float,
         default=OPEN_SET_MIN_CLOSURE,
@@ -389,6 +425,10 @@ def main(argv: list[str] | None = None) -> None:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
+    if args.scored and args.rescore:
+        print("error: --scored rows cannot be decided again (their reports are elsewhere); "
+              "use it without --rescore", file=sys.stderr)  # fmt: skip
+        sys.exit(2)
     library = candidate_library(base)
     try:
         plan = set_plan(args.kinds, sorted(library), args.first_seed)
@@ -399,14 +439,22 @@ def main(argv: list[str] | None = None) -> None:
         plan = [(seed, None, None) for seed in range(args.first_seed, args.first_seed + args.sets)]
     else:
         plan = plan[args.skip :][: args.sets or None]
+    try:
+        earlier = scored_rows(args.scored, plan)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     rows = []
     for seed, kind, effect in plan:
         start = time.perf_counter()
         real = out / "sets" / f"set{seed}"
         answer_path = out / "answers" / f"set{seed}.json"
-        if args.finished_only and not (
-            (out / "reports" / real.name / "report.json").is_file() and answer_path.is_file()
-        ):
+        finished = (out / "reports" / real.name / "report.json").is_file()
+        if seed in earlier and not finished:
+            rows.append(earlier[seed])
+            print(json.dumps(earlier[seed]), flush=True)
+            continue
+        if args.finished_only and not (finished and answer_path.is_file()):
             continue
         answer_path.parent.mkdir(parents=True, exist_ok=True)
         sealed = (real / "labels.csv").is_file() and answer_path.is_file()

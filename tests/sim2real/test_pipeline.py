@@ -414,6 +414,22 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
         validate([*args[:-1], str(tmp_path / "empty")])
     assert stop.value.code == 2
     assert "no finished sealed set" in capsys.readouterr().err
+    # a plan carried over machines: set 2 was scored elsewhere, set 1's row there is stale
+    other = {**rows[0], "seed": 2, "top1": False, "predicted": "unexplained"}
+    earlier = tmp_path / "elsewhere.json"
+    earlier.write_text(json.dumps({"sets": [other, {**rows[0], "top1": False}]}))
+    validate([*args, "--scored", str(earlier)])
+    merged = json.loads((out / "validation.json").read_text())
+    assert [r["seed"] for r in merged["sets"]] == [1, 2]
+    assert merged["sets"][0]["top1"] and not merged["sets"][1]["top1"]  # here wins for set 1
+    assert merged["summary"]["top1"] == 0.5 and not (out / "sets").exists()
+    earlier.write_text(json.dumps({"sets": [{**other, "kind": "open"}]}))
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        validate([*args, "--scored", str(earlier)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --scored") and "kind 'open'" in err and "'single'" in err
 
 
 def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_path, capsys):
@@ -446,6 +462,10 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
         validate([*args, "--open-set-threshold", "1.5"])
     assert stop.value.code == 2
     assert "--open-set-threshold must be in (0, 1]" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        validate([*args, "--scored", str(out / "rescored.json")])
+    assert stop.value.code == 2
+    assert "--scored rows cannot be decided again" in capsys.readouterr().err
     blind = [a for a in args if a != "--rescore"]
     with pytest.raises(SystemExit) as stop:
         validate([*blind, "--finished-only", "--open-set-threshold", "0.5"])
