@@ -432,14 +432,11 @@ def main(argv: list[str] | None = None) -> None:
     library = candidate_library(base)
     try:
         plan = set_plan(args.kinds, sorted(library), args.first_seed)
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
-    if plan is None:
-        plan = [(seed, None, None) for seed in range(args.first_seed, args.first_seed + args.sets)]
-    else:
-        plan = plan[args.skip :][: args.sets or None]
-    try:
+        if plan is None:
+            seeds = range(args.first_seed, args.first_seed + args.sets)
+            plan = [(seed, None, None) for seed in seeds]
+        else:
+            plan = plan[args.skip :][: args.sets or None]
         earlier = scored_rows(args.scored, plan)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
