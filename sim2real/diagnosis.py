@@ -135,6 +135,22 @@ interval 0-22.8° around the nominal 15°) and, through a coalition, on motion b
 interval 14.7-30.2°). Decided again over the stored reports of rounds 8-11 (in-sample), the
 rule changed those two answers (to "unexplained") and no other. Blind test: round 12."""
 
+SATURATED_TIE = (
+    "candidates with equal classifier closures are ordered by their kernel distance to R "
+    "(mean MMD² over the scored rungs at the best strength, nearest first)"
+)
+"""How :func:`rank_candidates` orders a tie.
+
+The classifier closure is clipped at 1: every candidate that brings S to within R's floor
+closes "all" of the gap, and a weak gap (a classifier barely above its floor) is closed that
+way by several of them at once. The classifier then cannot rank them, and the order used to
+be the library's (physics before visual): in blind round 12 a specular roughness 0.146
+(19022, a pixel gap at p = 0.03) tied at 1.0 with air damping and lighting variation and
+air damping was named. The kernel distance is the second, independent statistic of every
+comparison; it orders the tie (there: specular 0.0043, air damping 0.0061, lighting
+variation 0.0096; S itself 0.0068). Decided again over round 12's stored reports, the rule
+changed that set's answer (to specular) and no other: 19022 was the only tie at the top."""
+
 CONFUSABLE_WITHIN = 0.1
 """Candidates whose scores lie within this of the best are reported as confusable with it."""
 
@@ -747,7 +763,7 @@ def rank_candidates(
     A top candidate whose strength interval holds its neutral value is never named
     (``neutral_in_interval``, :data:`NEUTRAL_RULE`).
     """
-    ranked = sorted(results, key=lambda r: r.best_score, reverse=True)
+    ranked = sorted(results, key=lambda r: (r.best_score, -_distance_at_best(r)), reverse=True)
     null_score = null.best_score if null is not None else 0.0
     threshold = max(min_closure, null_score + OPEN_SET_MARGIN)
     top = ranked[0] if ranked else None
@@ -777,6 +793,13 @@ def rank_candidates(
         "confusable_with_top": confusable,
         "stage_scores": stages,
     }
+
+
+def _distance_at_best(result: CandidateResult) -> float:
+    """Mean MMD² to R over the scored rungs at the best strength (:data:`SATURATED_TIE`)."""
+    values = [result.mmd2[r][result.best] for r in result.closure_auc if r in result.mmd2]
+    values = [v for v in values if math.isfinite(v)]
+    return float(np.mean(values)) if values else math.inf
 
 
 def shapley_values(players: list[str], value: dict[frozenset, float]) -> dict[str, float]:
@@ -829,6 +852,16 @@ def stage_of_residual(location: dict, stage_scores: dict | None = None) -> str:
     rung pattern decide. The pattern alone misleads for motion: a different wind changes the
     cloth's shading and silhouette, so the pixel statistics differ as much as for a camera
     effect (the out-of-library wind speeds of every blind round; docs/sim2real.md).
+
+    The converse holds: where the motion differs and the pixel statistics do not, the
+    appearance candidates' partial closures are not counted. The motion rung is
+    appearance-free (optical flow and temporal spectra of the cloth), so a renderer change
+    (lighting, texture, shading) cannot make it; what such a candidate closes then lies in the
+    network's layers alone. In blind round 12 an air damping 0.055 (19005: motion and three
+    layers differed, pixels did not) was placed in "appearance or camera" after lighting
+    variation's 49 % on enc.fc6 (physics: air damping's 30 %). Decided again over that
+    round's stored reports, this changed 19005's stage (to physics or scene) and no other.
+    Camera candidates (frame rate, motion blur, shake) do change the motion and still count.
     """
     if not location["significant"] and location["first_significant_layer"] is None:
         return "none (no significant gap)"
@@ -839,6 +872,8 @@ def stage_of_residual(location: dict, stage_scores: dict | None = None) -> str:
     else:
         by_pattern, pattern = "network features only", "pixel and motion statistics agree"
     scores = {k: v for k, v in (stage_scores or {}).items() if v is not None}
+    if by_pattern == "physics or scene":
+        scores.pop("appearance", None)  # the renderer does not move the cloth
     best = max(scores, key=scores.get) if scores else None
     if best is not None and scores[best] >= RESIDUAL_STAGE_MIN_CLOSURE:
         return (

@@ -11,7 +11,8 @@ sharded over processes (``--skip``, ``--sets``), each with its own ``--out``; on
 ``sets/``, ``answers/`` and ``reports/`` are merged into one folder, ``--finished-only``
 writes the table of every finished set there without sealing or diagnosing anything.
 ``--rescore`` does the same but first decides every stored diagnosis again from its
-measured closures (:mod:`sim2real.rescore`), with today's rules or another
+measured closures (:mod:`sim2real.rescore`; the residual stage of an unexplained gap
+too, :func:`~sim2real.diagnosis.stage_of_residual`), with today's rules or another
 ``--open-set-threshold``, and writes ``rescored.md``, ``rescored.json`` and
 ``confusion_rescored.png`` beside the blind table, which it leaves alone.
 ``--scored FILE`` carries a plan over machines: the rows of an earlier ``validation.json``
@@ -32,7 +33,7 @@ import numpy as np
 
 from .candidates import candidate_library
 from .detectability import detectable_at
-from .diagnosis import OPEN_SET_MIN_CLOSURE
+from .diagnosis import OPEN_SET_MIN_CLOSURE, stage_of_residual
 from .pipeline import Budget, load_run, run_diagnosis
 from .rescore import decide_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
@@ -266,8 +267,8 @@ def _table(summary: dict, rows: list[dict]) -> str:
 def _rescored_note(threshold: float, rows: list[dict]) -> str:
     """The header of a rescored table: what was decided again, and what could not be."""
     lines = [
-        f"Decided again from the stored closures at open-set threshold {threshold:g} "
-        "(`--rescore`); the diagnoses were not rerun.", "",
+        f"Decided again (ranking, cause and residual stage) from the stored closures at "
+        f"open-set threshold {threshold:g} (`--rescore`); the diagnoses were not rerun.", "",
     ]  # fmt: skip
     missing = [str(r["seed"]) for r in rows if r.get("replayed") is False]
     if missing:
@@ -474,8 +475,9 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 reruns.append(_diagnosed(folder, {**common, "sim_seed": sim_seed}))
         if args.rescore:
-            result = {**result, "ranking": decide_again(result,
-                                                        min_closure=args.open_set_threshold)}
+            ranking = decide_again(result, min_closure=args.open_set_threshold)
+            stage = stage_of_residual(result["location"], ranking["stage_scores"])
+            result = {**result, "ranking": ranking, "residual_stage": stage}
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
         row = score_set(result, answer)
         if args.rescore:

@@ -146,6 +146,13 @@ def test_the_residual_stage_follows_the_candidates_that_close_most():
     assert stage_of_residual(wind, quiet) == "appearance or camera (the pixel statistics differ)"
     motion = {"significant": ["motion"], "first_significant_layer": None}
     assert stage_of_residual(motion, {}).startswith("physics or scene")
+    # blind set 19005 (air damping): motion and layers differ, pixels do not; the renderer
+    # cannot move the cloth, so lighting variation's larger partial closure does not count
+    damping = {"significant": ["motion", "enc.fc6", "lstm"], "first_significant_layer": "enc.fc6"}
+    scores = {"appearance": 0.49, "camera": 0.01, "physics": 0.30, "scene": 0.16}
+    assert stage_of_residual(damping, scores).startswith("physics or scene (the physics")
+    scores["camera"] = 0.4  # a camera effect (frame rate, motion blur) does move the motion
+    assert stage_of_residual(damping, scores).startswith("appearance or camera (the camera")
     deep = {"significant": ["lstm"], "first_significant_layer": "lstm"}
     assert stage_of_residual(deep, None).startswith("network features only")
     none = {"significant": [], "first_significant_layer": None}
@@ -443,6 +450,26 @@ def test_a_cause_must_close_the_open_set_threshold_of_the_gap(closure, named):
     assert ranking["kernel_closure"] is None  # no rung above its MMD² floor: cannot refute
     assert ranking["explained"] is named
     assert ranking["look_alike"] is False
+
+
+def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
+    # Blind round 12, set 19022: a weak pixel gap closed "fully" (clipped at 1) by air
+    # damping, lighting variation and the withheld specular; the library order named air
+    # damping. The kernel distance to R at the best strength orders the tie.
+    def fit(name, stage, distance, score=1.0):
+        return CandidateResult(name, stage, (0.1, 0.3), {"pixel": [distance, 0.02]}, {},
+                               [score, 0.2], closure_auc={"pixel": [score, 0.2]})  # fmt: skip
+
+    results = [fit("physics.air_damping", "physics", 0.0061),
+               fit("visual.lighting_variation", "appearance", 0.0096),
+               fit("visual.specular", "appearance", 0.0043),
+               fit("visual.white_balance", "camera", 0.0001, score=0.95)]  # fmt: skip
+    null = CandidateResult("S'", "null", (None,), {}, {}, [-1.0])
+    ranking = rank_candidates(results, null, [])
+    assert ranking["ranking"] == ["visual.specular", "physics.air_damping",
+                                  "visual.lighting_variation", "visual.white_balance"]  # fmt: skip
+    assert ranking["top"] == "visual.specular" and ranking["explained"]
+    assert ranking["confusable_with_top"] == ranking["ranking"][1:]
 
 
 @pytest.mark.parametrize(

@@ -442,7 +442,8 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
     report = {
         "candidates": {fit.name: {**fit.to_json(), "best": fit.best}}, "null": null.to_json(),
         "ranking": rank_candidates([fit], null, ["pixel"]), "shapley": None, "stacked": None,
-        "scored_rungs": ["pixel"], "residual_stage": "camera",
+        "scored_rungs": ["pixel"], "residual_stage": "physics (stored by an older rule)",
+        "location": {"significant": ["pixel"], "first_significant_layer": None},
     }  # fmt: skip
     _merged(out, report, world["answer"])
     args = ["--kinds", "single:1", "--first-seed", "1", "--sets", "0", "--rescore",
@@ -454,6 +455,7 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
     saved = json.loads((out / "rescored.json").read_text())
     assert saved["summary"]["open_set_threshold"] == 0.95
     assert saved["sets"][0]["predicted"] == "unexplained" and not saved["sets"][0]["top1"]
+    assert saved["sets"][0]["stage_correct"]  # the residual stage is decided again: camera
     assert "open-set threshold 0.95" in (out / "rescored.md").read_text()
     assert (out / "confusion_rescored.png").is_file()
     assert not (out / "validation.md").exists() and not (out / "sets").exists()
