@@ -13,6 +13,10 @@ gap and the leader closes at least :data:`~sim2real.stacking.STACK_MIN_LEADER`. 
 rules now call for a stacked fit that the stored run never made (it had named a cause
 before), the decision is left unexplained and marked ``"replayed": False``: rerun the
 diagnosis to know.
+
+:func:`decided_again` returns the whole report so decided, with the residual stage of an
+unexplained gap (:func:`~sim2real.diagnosis.stage_of_residual`) recomputed from the new
+ranking.
 """
 
 from __future__ import annotations
@@ -22,11 +26,12 @@ from .diagnosis import (
     CandidateResult,
     explains_together,
     rank_candidates,
+    stage_of_residual,
 )
 from .pipeline import explained_together
 from .stacking import STACK_MIN_LEADER, explained_by_stack
 
-__all__ = ["decide_again"]
+__all__ = ["decide_again", "decided_again"]
 
 
 def decide_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> dict:
@@ -60,3 +65,10 @@ def decide_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> 
     ):  # fmt: skip
         return explained_by_stack(ranking, stacked)
     return ranking
+
+
+def decided_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> dict:
+    """``report`` with its ranking (:func:`decide_again`) and its residual stage decided again."""
+    ranking = decide_again(report, min_closure=min_closure)
+    stage = stage_of_residual(report["location"], ranking["stage_scores"])
+    return {**report, "ranking": ranking, "residual_stage": stage}

@@ -11,8 +11,7 @@ sharded over processes (``--skip``, ``--sets``), each with its own ``--out``; on
 ``sets/``, ``answers/`` and ``reports/`` are merged into one folder, ``--finished-only``
 writes the table of every finished set there without sealing or diagnosing anything.
 ``--rescore`` does the same but first decides every stored diagnosis again from its
-measured closures (:mod:`sim2real.rescore`; the residual stage of an unexplained gap
-too, :func:`~sim2real.diagnosis.stage_of_residual`), with today's rules or another
+measured closures and residual stage (:mod:`sim2real.rescore`), with today's rules or another
 ``--open-set-threshold``, and writes ``rescored.md``, ``rescored.json`` and
 ``confusion_rescored.png`` beside the blind table, which it leaves alone.
 ``--scored FILE`` carries a plan over machines: the rows of an earlier ``validation.json``
@@ -33,9 +32,9 @@ import numpy as np
 
 from .candidates import candidate_library
 from .detectability import detectable_at
-from .diagnosis import OPEN_SET_MIN_CLOSURE, stage_of_residual
+from .diagnosis import OPEN_SET_MIN_CLOSURE
 from .pipeline import Budget, load_run, run_diagnosis
-from .rescore import decide_again
+from .rescore import decided_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
 __all__ = ["ranking_stability", "ranks", "score_set", "set_plan", "stability_scores", "summarise"]
@@ -475,9 +474,7 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 reruns.append(_diagnosed(folder, {**common, "sim_seed": sim_seed}))
         if args.rescore:
-            ranking = decide_again(result, min_closure=args.open_set_threshold)
-            stage = stage_of_residual(result["location"], ranking["stage_scores"])
-            result = {**result, "ranking": ranking, "residual_stage": stage}
+            result = decided_again(result, min_closure=args.open_set_threshold)
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
         row = score_set(result, answer)
         if args.rescore:
