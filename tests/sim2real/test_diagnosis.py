@@ -12,6 +12,7 @@ from sim2real.diagnosis import (
     OPEN_SET_MIN_CLOSURE,
     RESIDUAL_STAGE_MIN_CLOSURE,
     CandidateResult,
+    ReferenceScores,
     best_subset_values,
     candidate_result,
     fit_strength,
@@ -132,6 +133,35 @@ def test_a_layer_where_s_sits_at_its_floor_is_not_scored(planted):
     assert right.best_strength == 1.5 and right.best_score > 0.6
 
 
+def test_the_score_weights_each_rung_by_the_gap_it_carries():
+    """A weak rung closed by chance does not outscore most of a strong rung (blind 20019).
+
+    R differs strongly in the pixels and weakly in the motion. Closing the motion fully
+    (nothing of the pixels) closed half the gap by the plain mean over rungs; weighted by
+    the classifier gap of each rung, the candidate that closes most of the pixels leads.
+    """
+    sim = _domain(0)
+    real = _domain(1, pixel_shift=_shift([0, 1, 2], 1.5), motion_shift=_shift([5, 6, 7], 0.4))
+    gaps = rung_gaps(sim, real, n_perm=99, n_boot=49, n_floor=6, seed=0)
+    rungs = ["pixel", "motion"]
+    before = reference_scores(sim, real, rungs)
+    weights = before.weights(gaps, rungs)
+    assert weights.sum() == pytest.approx(1.0) and weights[0] > 2 * weights[1] > 0
+    weak = candidate_result("scene.weak", "scene", (1.0,),
+                            [_shifted(sim, "motion", _shift([5, 6, 7], 0.4))], sim, real, gaps,
+                            rungs, before)  # fmt: skip
+    strong = candidate_result("visual.strong", "camera", (1.0,),
+                              [_shifted(sim, "pixel", _shift([0, 1, 2], 0.9))], sim, real, gaps,
+                              rungs, before)  # fmt: skip
+    plain = {r.name: np.mean([r.closure_auc[k][0] for k in rungs]) for r in (weak, strong)}
+    assert plain["scene.weak"] > plain["visual.strong"]  # the old mean put the weak one first
+    assert strong.best_score > weak.best_score
+    assert weak.best_score == pytest.approx(weights[1] * weak.closure_auc["motion"][0])
+    # no rung with a gap above its floor: equal weights
+    flat = ReferenceScores(auc={"pixel": 0.3, "motion": 0.4}, divergence={})
+    assert flat.weights(gaps, rungs).tolist() == [0.5, 0.5]
+
+
 def test_the_residual_stage_follows_the_candidates_that_close_most():
     """A different wind moves the pixel statistics too; the partial closures place it."""
     wind = {"significant": ["pixel", "motion", "lstm"], "first_significant_layer": "lstm"}
@@ -153,6 +183,14 @@ def test_the_residual_stage_follows_the_candidates_that_close_most():
     assert stage_of_residual(damping, scores).startswith("physics or scene (the physics")
     scores["camera"] = 0.4  # a camera effect (frame rate, motion blur) does move the motion
     assert stage_of_residual(damping, scores).startswith("appearance or camera (the camera")
+    # blind sets 20000, 20002 (tone curves): pixels and a layer differ, the motion does not;
+    # a scene change moves the cloth, so wind-yaw jitter's partial closure does not count
+    tone = {"significant": ["pixel", "enc.block2"], "first_significant_layer": "enc.block2"}
+    scores = {"appearance": -0.49, "camera": 0.14, "physics": 0.0, "scene": 0.5}
+    assert stage_of_residual(tone, scores).startswith("appearance or camera (the camera")
+    assert "the motion does not" in stage_of_residual(tone, scores)
+    scores["physics"] = 0.3  # a physics change can move the pixels more than the motion (20005)
+    assert stage_of_residual(tone, scores).startswith("physics or scene (the physics")
     deep = {"significant": ["lstm"], "first_significant_layer": "lstm"}
     assert stage_of_residual(deep, None).startswith("network features only")
     none = {"significant": [], "first_significant_layer": None}
