@@ -83,8 +83,9 @@ OPEN_SET_MIN_CLOSURE = 0.6
 """A candidate must close at least this share of the floor-corrected gap (classifier
 closure over the scored rungs, :data:`GAP_WEIGHTED`), and beat the chance closure of a fresh
 nominal draw S' by :data:`OPEN_SET_MARGIN`, to be named the cause; else the answer is
-"unexplained residual". On the development sealed sets (seeds 3000-3010, never used in the validation) planted
-library effects closed 0.60-1.0 at their fitted strength, a fresh nominal draw -0.65-0.11.
+"unexplained residual". On the development sealed sets (seeds 3000-3010, never used in the
+validation) planted library effects closed 0.60-1.0 at their fitted strength, a fresh
+nominal draw -0.65-0.11.
 It was 0.5 ("most of the gap") up to blind round 10, where two of four out-of-library
 effects were named after a look-alike that closed 0.57 (rolling shutter -> frame rate,
 kernel 0.84) and, as a coalition of three, 0.69 (barrel distortion -> defocus blur, motion
@@ -136,8 +137,9 @@ interval 14.7-30.2°). Decided again over the stored reports of rounds 8-11 (in-
 rule changed those two answers (to "unexplained") and no other. Blind test: round 12."""
 
 SATURATED_TIE = (
-    "candidates with equal classifier closures are ordered by their kernel distance to R "
-    "(mean MMD² over the scored rungs at the best strength, nearest first)"
+    "candidates with equal classifier closures are ordered first by whether they can be told "
+    "from their absence (NEUTRAL_RULE), then by their kernel distance to R (mean MMD² over "
+    "the scored rungs at the best strength, nearest first)"
 )
 """How :func:`rank_candidates` orders a tie.
 
@@ -149,7 +151,15 @@ be the library's (physics before visual): in blind round 12 a specular roughness
 air damping was named. The kernel distance is the second, independent statistic of every
 comparison; it orders the tie (there: specular 0.0043, air damping 0.0061, lighting
 variation 0.0096; S itself 0.0068). Decided again over round 12's stored reports, the rule
-changed that set's answer (to specular) and no other: 19022 was the only tie at the top."""
+changed that set's answer (to specular) and no other: 19022 was the only tie at the top.
+
+A tied candidate whose interval holds its neutral value (:data:`NEUTRAL_RULE`) closes the gap
+no better than its own absence, so it goes after those that can be told from theirs: in blind
+round 14 an air damping 0.064 (21005, one weak layer) tied at 1.0 with wind-yaw jitter, whose
+interval spanned its whole range around the nominal; the jitter was nearer by the kernel
+distance, led, and, unnamed by the rule, left the gap unexplained. Decided again over rounds
+12-14's stored reports (in-sample), this changed 21005's answer (to air damping) and, among
+the sets without any gap, the order of candidates that all close nothing."""
 
 GAP_WEIGHTED = (
     "a candidate's score is its classifier closure on each scored rung, weighted by the "
@@ -800,7 +810,10 @@ def rank_candidates(
     A top candidate whose strength interval holds its neutral value is never named
     (``neutral_in_interval``, :data:`NEUTRAL_RULE`).
     """
-    ranked = sorted(results, key=lambda r: (r.best_score, -_distance_at_best(r)), reverse=True)
+    ranked = sorted(
+        results, key=lambda r: (r.best_score, not r.holds_neutral, -_distance_at_best(r)),
+        reverse=True,
+    )  # fmt: skip
     null_score = null.best_score if null is not None else 0.0
     threshold = max(min_closure, null_score + OPEN_SET_MARGIN)
     top = ranked[0] if ranked else None

@@ -508,6 +508,19 @@ def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
                                   "visual.lighting_variation", "visual.white_balance"]  # fmt: skip
     assert ranking["top"] == "visual.specular" and ranking["explained"]
     assert ranking["confusable_with_top"] == ranking["ranking"][1:]
+    # blind round 14, set 21005: a tie at 1.0 on one weak layer between wind-yaw jitter
+    # (interval 0-45 around its nominal 15) and the withheld air damping; the jitter was
+    # nearer by the kernel distance and, holding its neutral value, left the gap unexplained
+    jitter = dataclasses.replace(fit("scene.wind_yaw_jitter_deg", "scene", 0.0001),
+                                 fit_interval=(0.0, 45.0), neutral=15.0)  # fmt: skip
+    damping = fit("physics.air_damping", "physics", 0.0061)
+    ranking = rank_candidates([jitter, damping], null, [])
+    assert ranking["ranking"] == ["physics.air_damping", "scene.wind_yaw_jitter_deg"]
+    assert ranking["top"] == "physics.air_damping" and ranking["explained"]
+    # a candidate that holds its neutral value still leads when it closes more
+    ranking = rank_candidates([jitter, fit("physics.air_damping", "physics", 0.0061, 0.9)],
+                              null, [])  # fmt: skip
+    assert ranking["top"] == "scene.wind_yaw_jitter_deg" and ranking["neutral_in_interval"]
 
 
 @pytest.mark.parametrize(
