@@ -719,8 +719,8 @@ def fit_strength(
             scores = result.scores_oof[rung][i]
             after = np.mean([measure(row, labels, weights) for row in scores], axis=0)
             closed[r, i] = np.clip((reference - after) / span, -1.0, 1.0)
-    weights = before.weights(gaps, rungs)
-    curves = np.tensordot(weights, closed, axes=1)  # (strengths, replicates)
+    rung_weights = before.weights(gaps, rungs)  # GAP_WEIGHTED, as the score
+    curves = np.tensordot(rung_weights, closed, axes=1)  # (strengths, replicates)
     curves = np.nan_to_num(curves, nan=-1.0)
     peaks = np.array([_peak(u, curves[:, b]) for b in range(n_boot)])
     lo, hi = np.quantile(peaks, [(1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2])
