@@ -34,6 +34,7 @@ from .ladder import LadderFeatures
 from .stats import (
     CI_LEVEL,
     Gap,
+    auc_above_floor,
     auc_score,
     bootstrap_draws,
     classifier_divergence,
@@ -539,8 +540,7 @@ class ReferenceScores:
         (1: fully separable, also on a saturated rung): the span a candidate's closure on
         the rung is a fraction of.
         """
-        floor = _auc_floor(gap)
-        return max(0.0, self.auc[rung] - floor) / max(1e-9, 1.0 - floor)
+        return auc_above_floor(self.auc[rung], _auc_floor(gap))
 
     def weights(self, gaps: dict[str, Gap], rungs: list[str]) -> np.ndarray:
         """:meth:`weight` of each of ``rungs``, summing to 1 (equal when no rung has a gap)."""

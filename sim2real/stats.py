@@ -934,7 +934,7 @@ class Gap:
         """
         if math.isnan(self.floor_auc):
             return math.nan
-        return max(0.0, self.auc - self.floor_auc) / max(1e-9, 1.0 - self.floor_auc)
+        return auc_above_floor(self.auc, self.floor_auc)
 
     def to_json(self) -> dict:
         """Plain-JSON dict (intervals as lists, NaN as None), with the corrected values."""
@@ -1133,6 +1133,11 @@ def compare(
         floor_mmd2_halves=(fx_mmd, fy_mmd),
         floor_auc_halves=(fx_auc, fy_auc),
     )
+
+
+def auc_above_floor(auc: float, floor: float) -> float:
+    """max(0, auc - floor) / (1 - floor): a domain AUC's share of what lies above its floor."""
+    return max(0.0, auc - floor) / max(1e-9, 1.0 - floor)
 
 
 def gap_closed(gap_before: float, gap_after: float, floor: float) -> float:
