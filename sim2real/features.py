@@ -492,11 +492,14 @@ def motion_features(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
     * ``rows_<part>_*`` for the top, middle and bottom third of the box, and their
       ``bottom_minus_top`` difference: ``d2_d1_log``, log of the mean squared second time
       difference of the normalised intensity over the mean squared first difference, and
-      ``tpsd_log_*``, logs of that third's relative temporal band powers. A rolling shutter
-      exposes lower rows later, so whatever it does to time (blending a frame with the next)
-      grows down the image; a frame-rate change or motion blur treats every row alike. Blind
-      round 11 (set 18027) named a frame-rate ratio of 1.03 for a rolling shutter, because a
-      row-blind ladder could not tell the two apart.
+      ``tpsd_log_*``, logs of that third's relative temporal band powers. Anything that
+      acts on time row by row (a rolling shutter's readout) shows in the difference; a
+      frame-rate change or motion blur treats every row alike. Blind round 11 (set 18027)
+      named a frame-rate ratio of 1.03 for a rolling shutter, because a row-blind ladder
+      could not tell the two apart. That rolling shutter, like rounds 12-15's, was an
+      image-space stand-in that blended each row with the next frame; the sealed sets now
+      render each band of rows at its time (:mod:`sim2real.open_set`), which shifts a row's
+      series in time without changing its spectrum: it shows as a skew of the motion.
 
     Args:
         clip: Frames, uint8 RGB, shape (K, H, W, 3), K >= 3 (flow needs two frame pairs for

@@ -2,8 +2,8 @@
 
 ``python -m sim2real.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
 from the seed alone, one or two effects of the candidate library at strengths inside their
-plausible ranges (or an effect outside the library: rolling shutter, barrel lens distortion,
-a tone curve, a stronger wind), plus nuisance differences (fresh textures and backgrounds, a
+plausible ranges (or an effect outside the library, made as a camera or the scene makes it,
+:mod:`.open_set`: rolling shutter, barrel lens distortion, a tone curve, a stronger wind), plus nuisance differences (fresh textures and backgrounds, a
 slightly moved camera, the wind direction's jitter off nominal) and continuous materials
 (stretch and bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
 writes only what a real set has: one folder of PNG frames per video and ``labels.csv``
@@ -22,7 +22,6 @@ import shutil
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from datasets.plan import SimulationPlan
@@ -36,20 +35,9 @@ from simulator.cloth.material import (
 )
 
 from .candidates import Candidate, candidate_library
+from .open_set import OPEN_SET_EFFECTS, render_sealed_video
 
 __all__ = ["OPEN_SET_EFFECTS", "SEAL_KINDS", "draw_answer", "seal_set"]
-
-OPEN_SET_EFFECTS = {
-    "rolling_shutter": ("camera", (0.5, 1.0)),
-    "barrel_distortion": ("camera", (0.1, 0.25)),
-    "tone_curve": ("camera", (0.55, 0.75)),
-    "wind_speed": ("scene", (1.4, 1.8)),
-}
-"""Effects no switch models: stage and strength range. Rolling shutter: readout time as a
-fraction of the frame interval; barrel distortion: the pixel at radius r (1 at a corner) shows
-the scene at r (1 + k r²) (a wide-angle lens's first radial term); tone curve: gamma (< 1
-brightens the mid-tones); wind speed: factor on the scene's wind speeds. Vignetting was one
-until it became a library effect (``visual.vignetting``, 2026-11-27)."""
 
 SEAL_KINDS = ("single", "pair", "open")
 _KIND_WEIGHTS = (0.5, 0.25, 0.25)
@@ -126,29 +114,6 @@ def draw_answer(
                 "strength": _draw_strength(candidate, rng), "library": True,
             })  # fmt: skip
     return {"seed": seed, "kind": kind, "effects": effects}
-
-
-def _apply_open_set(frames: np.ndarray, name: str, strength: float) -> np.ndarray:
-    """An out-of-library image effect on uint8 frames (K, H, W, 3)."""
-    values = frames.astype(np.float32)
-    height, width = frames.shape[1:3]
-    if name == "rolling_shutter":  # row y shows time t + strength * y / H (next frame blend)
-        share = (strength * np.arange(height) / height)[None, :, None, None].astype(np.float32)
-        later = np.concatenate([values[1:], values[-1:]])
-        values = (1 - share) * values + share * later
-    elif name == "barrel_distortion":
-        y, x = np.mgrid[0:height, 0:width].astype(np.float32) + 0.5
-        u, v = (x - width / 2) / (width / 2), (y - height / 2) / (height / 2)
-        scale = 1 + strength * (u * u + v * v) / 2
-        map_x = (u * scale * (width / 2) + width / 2 - 0.5).astype(np.float32)
-        map_y = (v * scale * (height / 2) + height / 2 - 0.5).astype(np.float32)
-        values = np.stack([
-            cv2.remap(frame, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-            for frame in values
-        ])  # fmt: skip
-    elif name == "tone_curve":
-        values = 255.0 * (values / 255.0) ** strength
-    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
 
 
 def _sealed_spec(base: DatasetSpec, answer: dict, rng: np.random.Generator) -> tuple:
@@ -237,6 +202,11 @@ def seal_set(
             spec.preset, clips_per_sim=clips_per_video, frames_per_clip=clip_len
         )
     ).frames_per_sim  # fmt: skip
+    # Out-of-library image effects render through open_set; a rolling shutter's last rows
+    # need the cloth one frame after the last.
+    in_image = [e["name"] for e in answer["effects"]
+                if not e["library"] and OPEN_SET_EFFECTS[e["name"]][0] != "scene"]  # fmt: skip
+    later = int("rolling_shutter" in in_image)
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
@@ -254,20 +224,22 @@ def seal_set(
         seq = simulate(
             spec.scenario, material, seeds=[sim_seeds[i] for i in idx],
             wind_levels=[winds[i] for i in idx], fps=spec.preset.fps,
-            record_time=(frame_count - 1) / spec.preset.fps, effects=spec.physics,
+            record_time=(frame_count - 1 + later) / spec.preset.fps, effects=spec.physics,
             settings=spec.sim,
         )  # fmt: skip
         for b, i in enumerate(idx):
             plan = SimulationPlan(-1, i, sim_seeds[i], winds[i], "test")
-            frames, _ = render_frames(
-                spec, seq, b, plan, spec.lead_in_frames, frame_count,
-                capsules=seq.capsules,
-                rng=np.random.default_rng([sim_seeds[i], _SEAL_STREAM, 2]),
-            )  # fmt: skip
-            for effect in answer["effects"]:
-                if not effect["library"] and effect["name"] in OPEN_SET_EFFECTS:
-                    if effect["name"] != "wind_speed":
-                        frames = _apply_open_set(frames, effect["name"], effect["strength"])
+            if in_image:
+                frames = render_sealed_video(
+                    spec, seq, b, plan, spec.lead_in_frames, frame_count,
+                    rng_seed=[sim_seeds[i], _SEAL_STREAM, 2], effects=answer["effects"],
+                )  # fmt: skip
+            else:
+                frames, _ = render_frames(
+                    spec, seq, b, plan, spec.lead_in_frames, frame_count,
+                    capsules=seq.capsules,
+                    rng=np.random.default_rng([sim_seeds[i], _SEAL_STREAM, 2]),
+                )  # fmt: skip
             _write_frames(partial / f"v{i:03d}", frames)
             density = basis.density * density_factor[i]
             rows.append(f"v{i:03d},{k[i]:.6g},{density:.6g},W{winds[i] + 1},{spec.preset.fps:g}")
