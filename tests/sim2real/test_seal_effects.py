@@ -177,3 +177,22 @@ def test_rolling_shutter_shows_each_band_at_its_readout_time(cloth):
     gap = np.abs(frames.astype(int) - plain).mean(axis=(0, 2, 3))
     top, bottom = gap[: edges[2]].mean(), gap[edges[-3] :].mean()
     assert bottom > 3 * top > 0, (top, bottom)  # measured: 0.089 and 0.013 levels
+
+
+def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_path):
+    # The sealer records one frame more for the last rows' readout; the set it writes has as
+    # many frames as a plain one, and they differ from the plain ones.
+    from sim2real.seal import seal_set
+
+    spec = cloth[0]
+    written = {}
+    for name, effects in (("plain", []), ("rolling", [("rolling_shutter", 1.0)])):
+        answer = {"seed": 4, "kind": "open" if effects else "single", "effects": [
+            {"name": n, "stage": "camera", "strength": s, "library": False} for n, s in effects
+        ]}  # fmt: skip
+        seal_set(tmp_path / name, base=spec, seed=4, videos=4, clips_per_video=1, clip_len=4,
+                 answer=answer)  # fmt: skip
+        written[name] = sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*"))
+    assert written["plain"] == written["rolling"]
+    first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0003.png")) for n in written]
+    assert np.abs(first[0].astype(int) - first[1]).mean() > 0.1
