@@ -508,7 +508,9 @@ def run_diagnosis(
         "shapley": shapley,
         "stacked": stacked,
         "counterfactuals": swaps,
-        "residual_stage": stage_of_residual(location, ranking["stage_scores"]),
+        "residual_stage": stage_of_residual(
+            location, ranking["stage_scores"], {n: g.corrected_auc for n, g in gaps.items()}
+        ),
         "detectability": detectability,
         "probes": probes,
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},

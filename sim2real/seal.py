@@ -3,8 +3,9 @@
 ``python -m sim2real.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
 from the seed alone, one or two effects of the candidate library at strengths inside their
 plausible ranges (or an effect outside the library, made as a camera or the scene makes it,
-:mod:`.open_set`: rolling shutter, barrel lens distortion, a tone curve, a stronger wind), plus nuisance differences (fresh textures and backgrounds, a
-slightly moved camera, the wind direction's jitter off nominal) and continuous materials
+:mod:`.open_set`: rolling shutter, barrel lens distortion, a tone curve, a stronger wind),
+plus nuisance differences (fresh textures and backgrounds, a slightly moved camera, the wind
+direction's jitter off nominal) and continuous materials
 (stretch and bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
 writes only what a real set has: one folder of PNG frames per video and ``labels.csv``
 (video, stiffness, density, wind, fps), with neutral names. The answer goes to a separate

@@ -10,6 +10,7 @@ import pytest
 from sim2real.diagnosis import (
     KERNEL_MIN_CLOSURE,
     OPEN_SET_MIN_CLOSURE,
+    RESIDUAL_MOTION_SHARE,
     RESIDUAL_STAGE_MIN_CLOSURE,
     CandidateResult,
     ReferenceScores,
@@ -195,6 +196,33 @@ def test_the_residual_stage_follows_the_candidates_that_close_most():
     assert stage_of_residual(deep, None).startswith("network features only")
     none = {"significant": [], "first_significant_layer": None}
     assert stage_of_residual(none, scores) == "none (no significant gap)"
+
+
+def test_a_residual_that_moves_as_much_as_it_looks_different_lies_in_physics_or_scene():
+    """Nothing closes 5 %: the motion's share of the gap tells a motion change from an image one."""
+    both = {"significant": ["pixel", "motion"], "first_significant_layer": "enc.block1"}
+    quiet = {"scene": 0.02, "physics": 0.03, "appearance": -0.01, "camera": -0.02}
+    # blind set 22001 (a stronger wind, out of the library): motion 0.55, pixel 0.68
+    text = stage_of_residual(both, quiet, {"pixel": 0.68, "motion": 0.55, "lstm": 0.6})
+    assert text.startswith("physics or scene (no candidate moves S toward R") and "0.55" in text
+    # set 23104 (barrel distortion made at the vertices): the flow barely changes
+    text = stage_of_residual(both, quiet, {"pixel": 0.47, "motion": 0.01})
+    assert text == "appearance or camera (the pixel statistics differ)"
+    share = RESIDUAL_MOTION_SHARE
+    assert stage_of_residual(both, quiet, {"pixel": 0.4, "motion": share * 0.4}).startswith(
+        "physics or scene")  # fmt: skip
+    assert stage_of_residual(both, quiet, {"pixel": 0.4, "motion": 0.99 * share * 0.4}
+                             ).startswith("appearance or camera")  # fmt: skip
+    # without the gaps (reports written before the rule) the pixel statistics decide
+    assert stage_of_residual(both, quiet).startswith("appearance or camera")
+    # a candidate that closes enough still places the residual first
+    closing = {**quiet, "camera": 0.3}
+    assert stage_of_residual(both, closing, {"pixel": 0.68, "motion": 0.55}).startswith(
+        "appearance or camera (the camera")  # fmt: skip
+    # a pixel-only gap never reaches the rule
+    tone = {"significant": ["pixel"], "first_significant_layer": None}
+    assert stage_of_residual(tone, quiet, {"pixel": 1.0, "motion": 0.9}).startswith(
+        "appearance or camera")  # fmt: skip
 
 
 def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
