@@ -200,9 +200,11 @@ and the motion rung differ, a motion gap (floor-corrected AUC) at least this sha
 pixel gap places the residual in "physics or scene": the cloth moves differently, and its
 pixels follow. Written after blind round 16's open sets (in-sample): the four out-of-library
 wind speeds of rounds 14-16 (21002, 22001, 23000, 23003) had nothing closing 5 % and motion
-at 0.66-0.92 of the pixel gap, and were all placed in "appearance or camera"; the image
-effects without time (tone curves, the barrel distortion as round 16's sealer makes it) had
-motion at 0-0.14 of the pixel gap. No other stored set lies where the rule acts."""
+at 0.66-0.92 of the pixel gap, and were all placed in "appearance or camera"; no other stored
+set lies where the rule acts. It is a prior, not a proof: tone curves move the flow little
+(motion 0-0.14 of the pixel gap), but a lens distortion bends the flow too (barrel 23104:
+0.02; barrel 23112: 0.7, placed by lighting variation's 21 % closure before the rule could
+act). Blind test: round 17."""
 
 _STAGE_PAIR = {
     "scene": "physics or scene",
@@ -943,8 +945,7 @@ def stage_of_residual(
     motion's share of the gap decides (``gaps``: floor-corrected AUC per rung; without them
     the pixel statistics decide as before): a motion gap of :data:`RESIDUAL_MOTION_SHARE` of
     the pixel gap or more says the cloth moves differently ("physics or scene"), a smaller one
-    that the image is formed differently. An image change without time (a lens, a tone curve)
-    leaves the optical flow as it was.
+    that the image is formed differently (see the constant for how far that holds).
     """
     if not location["significant"] and location["first_significant_layer"] is None:
         return "none (no significant gap)"
