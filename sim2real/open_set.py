@@ -152,6 +152,11 @@ def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_s
     from datasets.generation import renderer_for, sim_look
 
     strengths = {e["name"]: e["strength"] for e in effects if not e["library"]}
+    if "rolling_shutter" in strengths and seq.pos.shape[1] <= stop:
+        raise ValueError(
+            f"seq: a rolling shutter reads its last rows after frame {stop - 1}; record at least "
+            f"{stop + 1} frames, got {seq.pos.shape[1]}"
+        )
     texture, background = sim_look(spec, plan)
     pos = seq.pos[b].astype(np.float64)
     capsules = None if seq.capsules is None else seq.capsules[b].astype(np.float64)

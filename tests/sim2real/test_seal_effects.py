@@ -196,3 +196,11 @@ def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_p
     assert written["plain"] == written["rolling"]
     first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0003.png")) for n in written]
     assert np.abs(first[0].astype(int) - first[1]).mean() > 0.1
+
+
+def test_a_rolling_shutter_without_the_frame_after_the_last_is_refused(cloth):
+    spec, seq, plan, stop = cloth
+    with pytest.raises(ValueError, match="record at least"):
+        render_sealed_video(spec, seq, 0, plan, spec.lead_in_frames, stop + 1, rng_seed=[5],
+                            effects=[{"name": "rolling_shutter", "strength": 0.5,
+                                      "library": False}])  # fmt: skip
