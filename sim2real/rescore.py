@@ -70,6 +70,6 @@ def decide_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> 
 def decided_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> dict:
     """``report`` with its ranking (:func:`decide_again`) and its residual stage decided again."""
     ranking = decide_again(report, min_closure=min_closure)
-    gaps = {name: gap["corrected_auc"] for name, gap in report["rungs"].items()}
+    gaps = {name: gap["corrected_auc"] for name, gap in report.get("rungs", {}).items()}
     stage = stage_of_residual(report["location"], ranking["stage_scores"], gaps)
     return {**report, "ranking": ranking, "residual_stage": stage}
