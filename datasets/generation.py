@@ -157,16 +157,26 @@ def render_frames(
     """Render frames ``[start, stop)`` of instance ``b`` of ``seq`` as ``spec`` renders them.
 
     Returns ``(frames, coverage[, passes])`` as :meth:`render.renderer.ClothRenderer.
-    render_clip` does; ``look`` is the simulation's (texture, background) when the caller
-    has it already (default: :func:`sim_look`), ``capsules`` the whole sequence's arm
-    capsules (``seq.capsules``).
+    render_clip` does (a rolling shutter also reads frame ``start - 1``); ``look`` is the
+    simulation's (texture, background) when the caller has it already (default:
+    :func:`sim_look`), ``capsules`` the whole sequence's arm capsules (``seq.capsules``).
     """
     texture, background = look if look is not None else sim_look(spec, sim)
+    lead = rolling_shutter_lead(spec, start)
     return renderer_for(spec).render_clip(
-        seq.pos[b, start:stop], seq.tri_indices, seq.uv, texture, background,
-        capsules=None if capsules is None else capsules[b, start:stop],
-        rng=rng, coverage=True, passes=passes,
+        seq.pos[b, start - lead : stop], seq.tri_indices, seq.uv, texture, background,
+        capsules=None if capsules is None else capsules[b, start - lead : stop],
+        rng=rng, coverage=True, passes=passes, lead=lead,
     )  # fmt: skip
+
+
+def rolling_shutter_lead(spec: DatasetSpec, start: int) -> int:
+    """Recorded frames before frame ``start`` that a rolling shutter's first rows see (0 or 1).
+
+    Its top rows are read up to a frame interval before the frame's time; a clip that starts
+    after the lead-in gets the frame before it, so every frame of the clip is skewed alike.
+    """
+    return int(spec.visual.rolling_shutter and start >= 1)
 
 
 def _sim_clips(spec: DatasetSpec, seq: MeshSequence, b: int, sim: SimulationPlan, capsules, look):

@@ -38,9 +38,13 @@ MOTIONS = {"wind": ScenarioWind, "arm": ScenarioArmBend}
 
 SPLITS = ("train", "val", "test")
 
-_LATER_VISUAL_FIELDS = ("vignetting", "vignetting_strength")
-"""Visual-effect fields added after datasets were made: :meth:`DatasetSpec.to_json` leaves
-them out while at their defaults, so those datasets keep their keys."""
+_LATER_VISUAL_FIELDS = (
+    ("vignetting", "vignetting_strength"),
+    ("rolling_shutter", "rolling_shutter_readout"),
+)
+"""Visual-effect fields added after datasets were made, by the effect they came with:
+:meth:`DatasetSpec.to_json` leaves each group out while it is at its defaults, so those
+datasets (and sets with the earlier ones on) keep their keys."""
 _DEFAULT_VISUAL = VisualEffects()
 
 
@@ -311,8 +315,8 @@ class DatasetSpec:
         :data:`~simulator.cloth.material.WANG54`, so datasets made before they existed keep
         their keys (and resume); :meth:`from_json` reads a missing set as ``WANG54``. The
         Newton loop's ``whole_step`` (same arithmetic, one compiled call) appears only when
-        off, and the visual-effect fields added later (:data:`_LATER_VISUAL_FIELDS`) only when
-        one of them is off its default, for the same reason.
+        off, and each group of visual-effect fields added later (:data:`_LATER_VISUAL_FIELDS`)
+        only when one of its fields is off its default, for the same reason.
         """
         out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
         if not self.store_passes:
@@ -321,10 +325,10 @@ class DatasetSpec:
             del out["sim"]["newton"]["whole_step"]
         if self.material_set == WANG54:
             del out["material_set"]
-        later = {n: _jsonable(getattr(_DEFAULT_VISUAL, n)) for n in _LATER_VISUAL_FIELDS}
-        if all(out["visual"][n] == v for n, v in later.items()):  # absent while all default
-            for name in later:
-                del out["visual"][name]
+        for group in _LATER_VISUAL_FIELDS:  # absent while all default
+            if all(out["visual"][n] == _jsonable(getattr(_DEFAULT_VISUAL, n)) for n in group):
+                for name in group:
+                    del out["visual"][name]
         return out
 
     @classmethod

@@ -30,7 +30,13 @@ import scipy.sparse
 
 from .camera import CameraSpec
 from .capsules import capsule_mesh, capsule_pose
-from .effects import VisualEffects, apply_image_effects, effect_streams, shake_offsets
+from .effects import (
+    VisualEffects,
+    apply_image_effects,
+    effect_streams,
+    rolling_shutter_offsets,
+    shake_offsets,
+)
 from .lights import LightSpec
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -247,6 +253,7 @@ class ClothRenderer:
         rng: np.random.Generator,
         coverage: bool = False,
         passes: bool = False,
+        lead: int = 0,
     ):
         """Render one clip.
 
@@ -269,6 +276,9 @@ class ClothRenderer:
                 frame with a mid-grey and with a black cloth and, unlit, the cloth's texture
                 coordinates and its own coverage (``uvm``); four renders per frame instead
                 of one. Implies ``coverage``; refused with the ``frame_rate`` effect.
+            lead: The first ``lead`` frames of ``pos`` (and ``capsules``) lie before the
+                clip: not rendered, only what a rolling shutter's first rows see (0 or 1).
+                Without them, times before the clip's first frame are clamped to it.
 
         Returns:
             Frames, uint8 RGB, shape (K, H, W, 3) (K changes only with ``frame_rate``); with
@@ -324,12 +334,19 @@ class ClothRenderer:
             lo, hi = np.minimum(lo, ends.min(0) - radius), np.maximum(hi, ends.max(0) + radius)
         bounds = np.stack([lo, hi]).astype(np.float64)
 
-        frame_count = pos.shape[0]
+        if lead not in (0, 1) or lead >= pos.shape[0]:
+            raise ValueError(f"lead must be 0 or 1 and leave frames to render, got {lead!r}")
+        frame_count = pos.shape[0] - lead
         if effects.motion_blur:
             fractions = np.linspace(-effects.motion_blur_shutter, 0.0, effects.motion_blur_samples)
         else:
             fractions = np.zeros(1)
-        times = np.maximum(np.arange(frame_count)[:, None] + fractions[None, :], 0.0)
+        # times[k, j, s]: sample s of row band j of frame k, in frames of the clip
+        bands = rolling_shutter_offsets(effects)
+        times = np.maximum(
+            np.arange(frame_count)[:, None, None] + bands[None, :, None] + fractions[None, None],
+            -lead,
+        )
         if effects.camera_shake:
             shake = shake_offsets(streams["camera_shake"], times.reshape(-1), effects)
             shake = shake.reshape(*times.shape, 6)
@@ -345,28 +362,35 @@ class ClothRenderer:
         capsule_nodes: list[tuple[pyrender.Node, tuple[float, float]]] = []
         try:
             for k in range(frame_count):
-                accum = None
-                for s, t in enumerate(times[k]):
-                    frame_pos = _interpolate(pos, t)
-                    self._set_cloth(nodes, frame_pos, geometry, material, bounds)
-                    if capsules is not None:
-                        self._set_capsules(capsule_nodes, _interpolate(capsules, t))
-                    cam_pose = self._camera_pose
-                    if shake is not None:
-                        delta = np.eye(4)
-                        delta[:3, :3] = _rotation(shake[k, s, :3])
-                        delta[:3, 3] = shake[k, s, 3:]
-                        cam_pose = cam_pose @ delta
-                    self._scene.set_pose(self._camera_node, cam_pose)
-                    rgba, _ = self._renderer.render(self._scene, flags=self._flags)
-                    layers = [rgba]
-                    if passes:
-                        layers += self._render_passes(nodes, frame_pos, geometry, bounds)
-                    layers = np.concatenate(layers, axis=-1).astype(np.float32)
-                    accum = layers if accum is None else accum + layers
-                layers = accum / len(times[k])
-                if self.supersample > 1:
-                    layers = cv2.resize(layers, (width, height), interpolation=cv2.INTER_AREA)
+                layers = None
+                for j, band_times in enumerate(times[k]):
+                    accum = None
+                    for s, t in enumerate(band_times):
+                        frame_pos = _interpolate(pos, t + lead)
+                        self._set_cloth(nodes, frame_pos, geometry, material, bounds)
+                        if capsules is not None:
+                            self._set_capsules(capsule_nodes, _interpolate(capsules, t + lead))
+                        cam_pose = self._camera_pose
+                        if shake is not None:
+                            delta = np.eye(4)
+                            delta[:3, :3] = _rotation(shake[k, j, s, :3])
+                            delta[:3, 3] = shake[k, j, s, 3:]
+                            cam_pose = cam_pose @ delta
+                        self._scene.set_pose(self._camera_node, cam_pose)
+                        rgba, _ = self._renderer.render(self._scene, flags=self._flags)
+                        band = [rgba]
+                        if passes:
+                            band += self._render_passes(nodes, frame_pos, geometry, bounds)
+                        band = np.concatenate(band, axis=-1).astype(np.float32)
+                        accum = band if accum is None else accum + band
+                    band = accum / len(band_times)
+                    if self.supersample > 1:
+                        band = cv2.resize(band, (width, height), interpolation=cv2.INTER_AREA)
+                    if layers is None:
+                        layers = band
+                    else:  # the rows of band j (output rows, cut after the supersampling)
+                        rows = slice(*(round(height * (j + e) / len(times[k])) for e in (0, 1)))
+                        layers[rows] = band[rows]
                 rgba = layers[..., :4]
                 for p, name in enumerate(extra):
                     rgb = layers[..., 4 + 3 * p : 7 + 3 * p]

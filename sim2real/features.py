@@ -497,9 +497,10 @@ def motion_features(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
       frame-rate change or motion blur treats every row alike. Blind round 11 (set 18027)
       named a frame-rate ratio of 1.03 for a rolling shutter, because a row-blind ladder
       could not tell the two apart. That rolling shutter, like rounds 12-15's, was an
-      image-space stand-in that blended each row with the next frame; the sealed sets now
-      render each band of rows at its time (:mod:`sim2real.open_set`), which shifts a row's
-      series in time without changing its spectrum: it shows as a skew of the motion.
+      image-space stand-in that blended each row with the next frame; since round 16 each
+      band of rows is rendered at its time (now the library's ``visual.rolling_shutter``),
+      which shifts a row's series in time without changing its spectrum: it shows as a skew
+      of the motion.
 
     Args:
         clip: Frames, uint8 RGB, shape (K, H, W, 3), K >= 3 (flow needs two frame pairs for

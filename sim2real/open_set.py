@@ -12,48 +12,75 @@ So here:
 - barrel distortion moves the cloth's vertices to where a barrel lens images them (what a
   vertex shader does; the render samples the texture as the nominal one does); only the
   background image, which has no geometry, is resampled;
-- rolling shutter renders each band of rows at that band's readout time, with positions
-  interpolated linearly within the frame interval (as the renderer's motion blur does), so
-  a moving edge is skewed, not ghosted;
+- exposure flicker scales each frame's brightness as a mains-powered light seen with a
+  short exposure does (the light's 100 Hz flicker, aliased by the frame rate);
 - a tone curve maps each pixel value;
 - wind speed scales the scene's wind speeds (applied to the scenario by :mod:`.seal`).
+
+The rolling shutter was one (rounds 11-17) until it became a library effect
+(``visual.rolling_shutter``): real CMOS footage has it, and faithfully rendered it reads as
+a change of the cloth's motion that no rule could tell from physics (rounds 16-17).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
 import numpy as np
 
 __all__ = [
+    "FLICKER_LIGHT_HZ",
     "OPEN_SET_EFFECTS",
-    "ROLLING_SHUTTER_BANDS",
+    "apply_exposure_flicker",
     "apply_tone_curve",
     "barrel_image",
     "barrel_points",
+    "flicker_frequency",
     "render_sealed_video",
-    "rolling_shutter_times",
 ]
 
 OPEN_SET_EFFECTS = {
-    "rolling_shutter": ("camera", (0.5, 1.0)),
     "barrel_distortion": ("camera", (0.1, 0.25)),
+    "exposure_flicker": ("camera", (0.04, 0.12)),
     "tone_curve": ("camera", (0.55, 0.75)),
     "wind_speed": ("scene", (1.4, 1.8)),
 }
-"""Effects no switch models: stage and strength range. Rolling shutter: readout time of the
-frame (top row to bottom row) as a fraction of the frame interval; barrel distortion: the
-pixel at normalised radius rho (rho² = (u² + v²) / 2, u and v in [-1, 1] across the frame,
-so rho = 1 at a corner) shows what a pinhole camera shows at rho (1 + k rho²) (a wide-angle
-lens's first radial term); tone curve: gamma (< 1 brightens the mid-tones); wind speed:
-factor on the scene's wind speeds. Vignetting was one until it became a library effect
-(``visual.vignetting``, 2026-11-27)."""
+"""Effects no switch models: stage and strength range. Barrel distortion: the pixel at
+normalised radius rho (rho² = (u² + v²) / 2, u and v in [-1, 1] across the frame, so rho = 1
+at a corner) shows what a pinhole camera shows at rho (1 + k rho²) (a wide-angle lens's
+first radial term); exposure flicker: relative amplitude of the frames' brightness
+oscillation (:func:`apply_exposure_flicker`); tone curve: gamma (< 1 brightens the
+mid-tones); wind speed: factor on the scene's wind speeds. Vignetting (until 2026-11-27)
+and the rolling shutter (until 2026-11-29) were ones until they became library effects."""
 
-ROLLING_SHUTTER_BANDS = 8
-"""Row bands of a rolling-shutter frame, each rendered at its own time. With the strongest
-readout (one frame interval) neighbouring bands lie an eighth of a frame apart: the cloth of
-the wind scene moves about 0.2 px in that time at 112 px, well below what blurs."""
+FLICKER_LIGHT_HZ = 100.0
+"""Brightness oscillation of a light on 50 Hz mains (twice the mains frequency)."""
+
+
+def flicker_frequency(fps: float, light_hz: float = FLICKER_LIGHT_HZ) -> float:
+    """Frequency [Hz] at which frames taken at ``fps`` see a light flickering at ``light_hz``.
+
+    Sampling aliases it to its distance from the nearest multiple of the frame rate (5 Hz for
+    100 Hz at 15 frames/s: a period of three frames).
+    """
+    return abs(light_hz - fps * round(light_hz / fps))
+
+
+def apply_exposure_flicker(
+    frames: np.ndarray, amplitude: float, fps: float, phase: float
+) -> np.ndarray:
+    """uint8 frames (K, H, W, 3) whose brightness oscillates as under a flickering light.
+
+    Frame ``k`` is scaled by ``1 + amplitude sin(2 pi f k / fps + phase)`` with ``f`` from
+    :func:`flicker_frequency`: an exposure much shorter than the light's period catches it at
+    another point of its cycle in each frame.
+    """
+    k = np.arange(frames.shape[0])
+    gain = 1.0 + amplitude * np.sin(2 * np.pi * flicker_frequency(fps) * k / fps + phase)
+    values = frames.astype(np.float32) * gain.astype(np.float32)[:, None, None, None]
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
 
 
 def apply_tone_curve(frames: np.ndarray, gamma: float) -> np.ndarray:
@@ -120,78 +147,44 @@ def barrel_image(image: np.ndarray, strength: float, interpolation: int = cv2.IN
     return cv2.remap(image, map_x, map_y, interpolation, borderMode=cv2.BORDER_REFLECT_101)
 
 
-def rolling_shutter_times(readout: float, bands: int = ROLLING_SHUTTER_BANDS) -> np.ndarray:
-    """Each row band's exposure time after its frame's, in frame intervals.
-
-    That is the band's middle row's readout, ``readout * (j + 0.5) / bands``; the top row is
-    read first.
-    """
-    return readout * (np.arange(bands) + 0.5) / bands
-
-
-def _at_time(values: np.ndarray, start: int, stop: int, offset: float) -> np.ndarray:
-    """Frames ``[start, stop)`` of ``values`` (K, ...), ``offset`` of a frame interval later.
-
-    Interpolated linearly (``offset`` in [0, 1]); needs ``stop < K``.
-    """
-    now, later = values[start:stop].astype(np.float64), values[start + 1 : stop + 1]
-    return now + offset * (later - now)
-
-
 def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_seed: list,
                         effects: list[dict]) -> np.ndarray:  # fmt: skip
     """Frames ``[start, stop)`` of instance ``b`` of ``seq`` with out-of-library image effects.
 
-    Rendered as ``spec`` renders them, with the sealed answer's (``effects``: its entries)
-    out-of-library image effects added.
-
-    ``rng_seed`` seeds the renderer's random draws; a rolling shutter renders every band with
-    the same draws, so only time differs between bands. The rolling shutter needs the frame
-    after ``stop - 1`` in ``seq`` (the sealer records one more).
+    Rendered as ``spec`` renders them (:func:`datasets.generation.render_frames`; ``rng_seed``
+    seeds the renderer's random draws), with the sealed answer's (``effects``: its entries)
+    out-of-library image effects added: a barrel lens moves the cloth and the arm before
+    rendering, the others act on the rendered frames.
     """
-    from datasets.generation import renderer_for, sim_look
+    from datasets.generation import render_frames, sim_look
 
     strengths = {e["name"]: e["strength"] for e in effects if not e["library"]}
-    if "rolling_shutter" in strengths and seq.pos.shape[1] <= stop:
-        raise ValueError(
-            f"seq: a rolling shutter reads its last rows after frame {stop - 1}; record at least "
-            f"{stop + 1} frames, got {seq.pos.shape[1]}"
-        )
     texture, background = sim_look(spec, plan)
-    pos = seq.pos[b].astype(np.float64)
-    capsules = None if seq.capsules is None else seq.capsules[b].astype(np.float64)
+    one = slice(b, b + 1)
+    video = dataclasses.replace(
+        seq, pos=seq.pos[one], capsules=None if seq.capsules is None else seq.capsules[one]
+    )
     if "barrel_distortion" in strengths:
         strength = strengths["barrel_distortion"]
-        pos = barrel_points(pos, spec.camera, strength)
+        capsules = video.capsules
         if capsules is not None:  # the arm's segments' end points; radii kept
-            capsules = capsules.copy()
+            capsules = capsules.astype(np.float64)
             for end in (slice(0, 3), slice(3, 6)):
                 capsules[..., end] = barrel_points(capsules[..., end], spec.camera, strength)
-        background = barrel_image(background, strength)
-    renderer = renderer_for(spec)
-
-    def render(offset: float) -> np.ndarray:
-        frames, _ = renderer.render_clip(
-            _at_time(pos, start, stop, offset) if offset else pos[start:stop],
-            seq.tri_indices, seq.uv, texture, background,
-            capsules=None if capsules is None else (
-                _at_time(capsules, start, stop, offset) if offset else capsules[start:stop]
-            ),
-            rng=np.random.default_rng(rng_seed), coverage=True,
+        video = dataclasses.replace(
+            video, pos=barrel_points(video.pos.astype(np.float64), spec.camera, strength),
+            capsules=capsules,
         )  # fmt: skip
-        return frames
-
-    if "rolling_shutter" in strengths:
-        times = rolling_shutter_times(strengths["rolling_shutter"])
-        height = spec.camera.height
-        edges = np.linspace(0, height, len(times) + 1).round().astype(int)
-        frames = None
-        for j, offset in enumerate(times):
-            band = render(float(offset))
-            frames = band if frames is None else frames
-            frames[:, edges[j] : edges[j + 1]] = band[:, edges[j] : edges[j + 1]]
-    else:
-        frames = render(0.0)
+        background = barrel_image(background, strength)
+    frames, _ = render_frames(
+        spec, video, 0, plan, start, stop, rng=np.random.default_rng(rng_seed),
+        capsules=video.capsules, look=(texture, background),
+    )  # fmt: skip
+    if "exposure_flicker" in strengths:
+        phase = np.random.default_rng([*rng_seed, 1]).uniform(0.0, 2 * np.pi)
+        frames = apply_exposure_flicker(
+            frames, strengths["exposure_flicker"], spec.preset.fps, phase
+        )
     if "tone_curve" in strengths:
         frames = apply_tone_curve(frames, strengths["tone_curve"])
     return frames

@@ -3,7 +3,7 @@
 ``python -m sim2real.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
 from the seed alone, one or two effects of the candidate library at strengths inside their
 plausible ranges (or an effect outside the library, made as a camera or the scene makes it,
-:mod:`.open_set`: rolling shutter, barrel lens distortion, a tone curve, a stronger wind),
+:mod:`.open_set`: barrel lens distortion, exposure flicker, a tone curve, a stronger wind),
 plus nuisance differences (fresh textures and backgrounds, a slightly moved camera, the wind
 direction's jitter off nominal) and continuous materials
 (stretch and bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
@@ -203,11 +203,9 @@ def seal_set(
             spec.preset, clips_per_sim=clips_per_video, frames_per_clip=clip_len
         )
     ).frames_per_sim  # fmt: skip
-    # Out-of-library image effects render through open_set; a rolling shutter's last rows
-    # need the cloth one frame after the last.
+    # Out-of-library image effects render through open_set.
     in_image = [e["name"] for e in answer["effects"]
                 if not e["library"] and OPEN_SET_EFFECTS[e["name"]][0] != "scene"]  # fmt: skip
-    later = int("rolling_shutter" in in_image)
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
@@ -225,7 +223,7 @@ def seal_set(
         seq = simulate(
             spec.scenario, material, seeds=[sim_seeds[i] for i in idx],
             wind_levels=[winds[i] for i in idx], fps=spec.preset.fps,
-            record_time=(frame_count - 1 + later) / spec.preset.fps, effects=spec.physics,
+            record_time=(frame_count - 1) / spec.preset.fps, effects=spec.physics,
             settings=spec.sim,
         )  # fmt: skip
         for b, i in enumerate(idx):

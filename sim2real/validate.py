@@ -293,7 +293,7 @@ def _detectability_rows(summary: dict, pct) -> list[str]:
 
 
 def set_plan(kinds: str | None, names: list[str], first_seed: int) -> list[tuple] | None:
-    """(seed, kind, fixed effect) per set of a plan like ``single:21,pair:6,open:4``.
+    """(seed, kind, fixed effect) per set of a plan like ``single:22,pair:6,open:4``.
 
     Singles take the library's effects in turn (``names`` order), so a plan with at least as
     many singles as effects covers every switch; pairs and open-set sets draw theirs from the
@@ -361,7 +361,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument(
         "--kinds",
-        help="a fixed plan, e.g. single:21,pair:6,open:4 (singles cycle through the library "
+        help="a fixed plan, e.g. single:22,pair:6,open:4 (singles cycle through the library "
         "in name order, so 21 cover every effect of the default wind scene); default: each "
         "set's kind drawn from its seed. With a plan, --sets counts its sets: 0 means all of them",
     )  # fmt: skip

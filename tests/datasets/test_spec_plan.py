@@ -116,6 +116,12 @@ def test_visual_effects_added_later_leave_old_keys_alone():
     assert len({tiny_spec().key(), stronger.key(), tiny_spec(visual=VisualEffects(
         vignetting=True)).key()}) == 3  # fmt: skip
     assert stronger.physics_key() == tiny_spec().physics_key()
+    # Each later group is left out on its own: a vignetting set keeps its key when the
+    # rolling shutter (added after it) is at its defaults.
+    assert "rolling_shutter" not in on["visual"] and "rolling_shutter_readout" not in on["visual"]
+    shutter = tiny_spec(visual=VisualEffects(rolling_shutter=True)).to_json()["visual"]
+    assert shutter["rolling_shutter"] is True and shutter["rolling_shutter_readout"] == 0.6
+    assert "vignetting" not in shutter
 
 
 def test_spec_round_trips_through_its_json_form():
@@ -128,6 +134,7 @@ def test_spec_round_trips_through_its_json_form():
     specs = [
         tiny_spec(),
         tiny_spec(visual=VisualEffects(vignetting=True, vignetting_strength=0.45)),
+        tiny_spec(visual=VisualEffects(rolling_shutter=True, rolling_shutter_readout=0.3)),
         tiny_spec(
             visual=VisualEffects(motion_blur=True, frame_rate_mode="drop"),
             physics=PhysicsEffects(aero_lift=True, anisotropic_stiffness=False),

@@ -35,7 +35,7 @@ def test_all_effects_off_by_default_and_partitioned():
     effects = VisualEffects()
     assert not any(effects.enabled().values())
     assert set(EFFECT_NAMES) == set(IMAGE_EFFECT_ORDER) | set(RENDER_EFFECTS)
-    assert len(EFFECT_NAMES) == 11
+    assert len(EFFECT_NAMES) == 12
 
 
 def test_from_dict_names_unknown_keys_and_the_allowed_ones():
@@ -60,6 +60,7 @@ def test_from_dict_names_unknown_keys_and_the_allowed_ones():
         ("specular_roughness", 2.0),
         ("defocus_radius_min_px", 5.0),
         ("vignetting_strength", 1.5),
+        ("rolling_shutter_readout", 1.2),
     ],
 )
 def test_bad_parameters_raise_naming_the_field(field, value):

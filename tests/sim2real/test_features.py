@@ -293,8 +293,8 @@ def blend_with_next(clip, weight):
 
 def blend_by_row(clip, readout):
     """Row y shows ``1 - readout * y / H`` of its frame and the rest of the next: blind rounds
-    11-15's image-space rolling shutter (``sim2real.open_set`` now renders each band at its
-    time instead)."""
+    11-15's image-space rolling shutter (the renderer's ``rolling_shutter`` now renders each
+    band of rows at its time instead)."""
     values = clip.astype(np.float32)
     later = np.concatenate([values[1:], values[-1:]])
     share = (readout * np.arange(clip.shape[1]) / clip.shape[1])[None, :, None, None]

@@ -1,4 +1,4 @@
-"""The seal's out-of-library effects: the lens model, tone curve and the rendered effects."""
+"""The seal's out-of-library effects: the lens model, flicker, tone curve, rendered sets."""
 
 import dataclasses
 import math
@@ -13,11 +13,12 @@ from render.camera import CameraSpec
 from sim2real.candidates import candidate_library
 from sim2real.open_set import (
     OPEN_SET_EFFECTS,
+    apply_exposure_flicker,
     apply_tone_curve,
     barrel_image,
     barrel_points,
+    flicker_frequency,
     render_sealed_video,
-    rolling_shutter_times,
 )
 from sim2real.seal import draw_answer
 from simulator.cloth.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
@@ -80,9 +81,16 @@ def test_tone_curve_maps_each_value():
     np.testing.assert_array_equal(out, [[[[0, round(255 * math.sqrt(64 / 255)), 255]]]])
 
 
-def test_rolling_shutter_bands_are_read_top_to_bottom_within_the_readout():
-    times = rolling_shutter_times(0.8, bands=4)
-    np.testing.assert_allclose(times, [0.1, 0.3, 0.5, 0.7])
+def test_flicker_is_the_lights_100_hz_aliased_by_the_frame_rate():
+    assert flicker_frequency(15.0) == pytest.approx(5.0)  # 105 = 7 x 15: a 3-frame period
+    assert flicker_frequency(30.0) == pytest.approx(10.0)
+    assert flicker_frequency(25.0) == pytest.approx(0.0)  # 100 = 4 x 25: a steady level
+    frames = np.full((6, 4, 4, 3), 100, np.uint8)
+    out = apply_exposure_flicker(frames, 0.1, 15.0, phase=np.pi / 2)
+    gains = out[:, 0, 0, 0] / 100.0
+    np.testing.assert_allclose(gains, 1 + 0.1 * np.cos(2 * np.pi * np.arange(6) / 3), atol=0.006)
+    np.testing.assert_array_equal(out[:3], out[3:])  # periodic in three frames
+    assert np.all(out == out[:, :1, :1])  # the whole frame alike
 
 
 def test_no_open_set_effect_is_a_library_effect():
@@ -90,6 +98,7 @@ def test_no_open_set_effect_is_a_library_effect():
     short = {name.split(".", 1)[1] for name in library}
     assert not short & set(OPEN_SET_EFFECTS)
     assert "visual.vignetting" in library  # it joined the library after blind round 8
+    assert "visual.rolling_shutter" in library  # and the rolling shutter after round 17
     drawn = {draw_answer(seed, library, "open")["effects"][0]["name"] for seed in range(40)}
     assert drawn == set(OPEN_SET_EFFECTS)
 
@@ -157,38 +166,26 @@ def test_barrel_distortion_moves_the_cloth_inwards_without_blurring_it(cloth, fl
     assert spread(lens) < 0.97 * spread(plain)
 
 
-def test_rolling_shutter_shows_each_band_at_its_readout_time(cloth):
-    spec, seq, _, _ = cloth
-    readout = 1.0
-    frames = _render(cloth, ("rolling_shutter", readout))
-    times = rolling_shutter_times(readout)
-    edges = np.linspace(0, spec.camera.height, len(times) + 1).round().astype(int)
-    pos = seq.pos.astype(np.float64)
-    for j in (0, len(times) - 1):
-        # The same cloth moved on by the band's time (positions interpolated linearly),
-        # rendered whole: its rows of band j are the sealed frame's, byte for byte.
-        later = np.concatenate([pos[:, 1:], pos[:, -1:]], axis=1)
-        moved = dataclasses.replace(seq, pos=pos + times[j] * (later - pos))
-        whole = _render(cloth, seq=moved)
-        np.testing.assert_array_equal(frames[:, edges[j]:edges[j + 1]],
-                                      whole[:, edges[j]:edges[j + 1]])  # fmt: skip
-    # Read later, the lower rows lie farther from the frame's own render than the top ones.
-    plain = _render(cloth)
-    gap = np.abs(frames.astype(int) - plain).mean(axis=(0, 2, 3))
-    top, bottom = gap[: edges[2]].mean(), gap[edges[-3] :].mean()
-    assert bottom > 3 * top > 0, (top, bottom)  # measured: 0.089 and 0.013 levels
+def test_exposure_flicker_scales_whole_frames_of_the_plain_render(cloth):
+    plain = _render(cloth).astype(float)
+    flicker = _render(cloth, ("exposure_flicker", 0.1)).astype(float)
+    lit = (plain > 40) & (plain < 220)  # away from rounding at the dark end and clipping
+    ratios = [np.median(flicker[k][lit[k]] / plain[k][lit[k]]) for k in range(len(plain))]
+    assert max(ratios) - min(ratios) > 0.1  # the level swings by about twice the amplitude
+    for k, ratio in enumerate(ratios):  # one gain per frame, to the rounding of uint8
+        assert np.abs(flicker[k][lit[k]] - ratio * plain[k][lit[k]]).max() <= 1.5
 
 
 def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_path):
-    # The sealer records one frame more for the last rows' readout; the set it writes has as
-    # many frames as a plain one, and they differ from the plain ones.
+    # The library's rolling shutter reads the frame before each clip's first; the set it
+    # writes has as many frames as a plain one, and they differ from the plain ones.
     from sim2real.seal import seal_set
 
     spec = cloth[0]
     written = {}
-    for name, effects in (("plain", []), ("rolling", [("rolling_shutter", 1.0)])):
-        answer = {"seed": 4, "kind": "open" if effects else "single", "effects": [
-            {"name": n, "stage": "camera", "strength": s, "library": False} for n, s in effects
+    for name, effects in (("plain", []), ("rolling", [("visual.rolling_shutter", 1.0)])):
+        answer = {"seed": 4, "kind": "single", "effects": [
+            {"name": n, "stage": "camera", "strength": s, "library": True} for n, s in effects
         ]}  # fmt: skip
         seal_set(tmp_path / name, base=spec, seed=4, videos=4, clips_per_video=1, clip_len=4,
                  answer=answer)  # fmt: skip
@@ -196,11 +193,3 @@ def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_p
     assert written["plain"] == written["rolling"]
     first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0003.png")) for n in written]
     assert np.abs(first[0].astype(int) - first[1]).mean() > 0.1
-
-
-def test_a_rolling_shutter_without_the_frame_after_the_last_is_refused(cloth):
-    spec, seq, plan, stop = cloth
-    with pytest.raises(ValueError, match="record at least"):
-        render_sealed_video(spec, seq, 0, plan, spec.lead_in_frames, stop + 1, rng_seed=[5],
-                            effects=[{"name": "rolling_shutter", "strength": 0.5,
-                                      "library": False}])  # fmt: skip
