@@ -157,26 +157,32 @@ def render_frames(
     """Render frames ``[start, stop)`` of instance ``b`` of ``seq`` as ``spec`` renders them.
 
     Returns ``(frames, coverage[, passes])`` as :meth:`render.renderer.ClothRenderer.
-    render_clip` does (a rolling shutter also reads frame ``start - 1``); ``look`` is the
+    render_clip` does (a rolling shutter also reads the frames beside them); ``look`` is the
     simulation's (texture, background) when the caller has it already (default:
     :func:`sim_look`), ``capsules`` the whole sequence's arm capsules (``seq.capsules``).
     """
     texture, background = look if look is not None else sim_look(spec, sim)
-    lead = rolling_shutter_lead(spec, start)
+    lead, trail = rolling_shutter_margins(spec, start, stop, seq.frame_count)
+    frames = slice(start - lead, stop + trail)
     return renderer_for(spec).render_clip(
-        seq.pos[b, start - lead : stop], seq.tri_indices, seq.uv, texture, background,
-        capsules=None if capsules is None else capsules[b, start - lead : stop],
-        rng=rng, coverage=True, passes=passes, lead=lead,
+        seq.pos[b, frames], seq.tri_indices, seq.uv, texture, background,
+        capsules=None if capsules is None else capsules[b, frames],
+        rng=rng, coverage=True, passes=passes, lead=lead, trail=trail,
     )  # fmt: skip
 
 
-def rolling_shutter_lead(spec: DatasetSpec, start: int) -> int:
-    """Recorded frames before frame ``start`` that a rolling shutter's first rows see (0 or 1).
+def rolling_shutter_margins(
+    spec: DatasetSpec, start: int, stop: int, recorded: int
+) -> tuple[int, int]:
+    """Recorded frames just before and after ``[start, stop)`` that a rolling shutter reads.
 
-    Its top rows are read up to a frame interval before the frame's time; a clip that starts
-    after the lead-in gets the frame before it, so every frame of the clip is skewed alike.
+    Its readout spans up to half a frame interval either side of a frame's time, so a clip
+    cut from a longer recording gets its neighbours (0 or 1 each) and every frame of it is
+    skewed alike; only a recording's first and last frames are clamped.
     """
-    return int(spec.visual.rolling_shutter and start >= 1)
+    if not spec.visual.rolling_shutter:
+        return 0, 0
+    return int(start >= 1), int(stop < recorded)
 
 
 def _sim_clips(spec: DatasetSpec, seq: MeshSequence, b: int, sim: SimulationPlan, capsules, look):

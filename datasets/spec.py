@@ -40,7 +40,7 @@ SPLITS = ("train", "val", "test")
 
 _LATER_VISUAL_FIELDS = (
     ("vignetting", "vignetting_strength"),
-    ("rolling_shutter", "rolling_shutter_readout"),
+    ("rolling_shutter", "rolling_shutter_readout", "rolling_shutter_bands"),
 )
 """Visual-effect fields added after datasets were made, by the effect they came with:
 :meth:`DatasetSpec.to_json` leaves each group out while it is at its defaults, so those

@@ -254,6 +254,7 @@ class ClothRenderer:
         coverage: bool = False,
         passes: bool = False,
         lead: int = 0,
+        trail: int = 0,
     ):
         """Render one clip.
 
@@ -279,6 +280,7 @@ class ClothRenderer:
             lead: The first ``lead`` frames of ``pos`` (and ``capsules``) lie before the
                 clip: not rendered, only what a rolling shutter's first rows see (0 or 1).
                 Without them, times before the clip's first frame are clamped to it.
+            trail: Likewise the last ``trail`` frames, after the clip (its last rows).
 
         Returns:
             Frames, uint8 RGB, shape (K, H, W, 3) (K changes only with ``frame_rate``); with
@@ -334,9 +336,12 @@ class ClothRenderer:
             lo, hi = np.minimum(lo, ends.min(0) - radius), np.maximum(hi, ends.max(0) + radius)
         bounds = np.stack([lo, hi]).astype(np.float64)
 
-        if lead not in (0, 1) or lead >= pos.shape[0]:
-            raise ValueError(f"lead must be 0 or 1 and leave frames to render, got {lead!r}")
-        frame_count = pos.shape[0] - lead
+        if lead not in (0, 1) or trail not in (0, 1) or lead + trail >= pos.shape[0]:
+            raise ValueError(
+                f"lead and trail must be 0 or 1 and leave frames to render, got {lead!r} and "
+                f"{trail!r} for {pos.shape[0]} frames"
+            )
+        frame_count = pos.shape[0] - lead - trail
         if effects.motion_blur:
             fractions = np.linspace(-effects.motion_blur_shutter, 0.0, effects.motion_blur_samples)
         else:

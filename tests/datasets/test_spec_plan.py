@@ -121,6 +121,7 @@ def test_visual_effects_added_later_leave_old_keys_alone():
     assert "rolling_shutter" not in on["visual"] and "rolling_shutter_readout" not in on["visual"]
     shutter = tiny_spec(visual=VisualEffects(rolling_shutter=True)).to_json()["visual"]
     assert shutter["rolling_shutter"] is True and shutter["rolling_shutter_readout"] == 0.6
+    assert shutter["rolling_shutter_bands"] == 8
     assert "vignetting" not in shutter
 
 

@@ -61,6 +61,7 @@ def test_from_dict_names_unknown_keys_and_the_allowed_ones():
         ("defocus_radius_min_px", 5.0),
         ("vignetting_strength", 1.5),
         ("rolling_shutter_readout", 1.2),
+        ("rolling_shutter_bands", 0),
     ],
 )
 def test_bad_parameters_raise_naming_the_field(field, value):

@@ -161,32 +161,38 @@ def test_each_renderer_effect_changes_the_frames(name, cloth, front_camera):
 
 
 def test_rolling_shutter_shows_each_band_of_rows_at_its_readout_time(cloth, front_camera):
-    from render.effects import ROLLING_SHUTTER_BANDS, rolling_shutter_offsets
+    from render.effects import rolling_shutter_offsets
     from render.renderer import _interpolate
 
     clip, tri, uv, _ = _moving_clip(cloth)  # 3 frames, 3 cm apart; the first is the lead
     texture = make_texture("grid", _rng(), size=64)
     effects = VisualEffects(rolling_shutter=True, rolling_shutter_readout=1.0)
     offsets = rolling_shutter_offsets(effects)
-    np.testing.assert_allclose(offsets, -1.0 + (np.arange(8) + 0.5) / 8)  # bottom band last
-    edges = np.linspace(0, IMAGE_SIZE, ROLLING_SHUTTER_BANDS + 1).round().astype(int)
+    # Top band first, bottom band last, centred on the frame's time.
+    np.testing.assert_allclose(offsets, (np.arange(8) + 0.5) / 8 - 0.5)
+    bands = effects.rolling_shutter_bands
+    edges = np.linspace(0, IMAGE_SIZE, bands + 1).round().astype(int)
     with ClothRenderer(front_camera, effects=effects) as r:
         skewed = r.render_clip(clip, tri, uv, texture, _background(), rng=_rng(), lead=1)
         clamped = r.render_clip(clip[1:], tri, uv, texture, _background(), rng=_rng())
+        # The frame after the clip, read but not rendered, gives its last frame's lower rows.
+        inner = r.render_clip(clip, tri, uv, texture, _background(), rng=_rng(), lead=1, trail=1)
     assert skewed.shape[0] == 2  # the lead frame is read, not rendered
+    np.testing.assert_array_equal(inner, skewed[:1])
     with ClothRenderer(front_camera) as r:
-        for j in (0, ROLLING_SHUTTER_BANDS - 1):
+        for j in (0, bands - 1):
             # The cloth at band j's time, rendered whole: its rows of band j are the frame's.
             at = np.stack([_interpolate(clip, k + 1 + offsets[j]) for k in range(2)])
             whole = r.render_clip(at, tri, uv, texture, _background(), rng=_rng())
             rows = slice(edges[j], edges[j + 1])
             np.testing.assert_array_equal(skewed[:, rows], whole[:, rows])
         plain = r.render_clip(clip[1:], tri, uv, texture, _background(), rng=_rng())
-    # Without the lead frame the first frame's bands cannot look back: it is the plain one.
-    np.testing.assert_array_equal(clamped[0], plain[0])
+    # Without the lead frame the first frame's upper bands cannot look back: they are plain.
+    upper = slice(0, edges[bands // 2])
+    np.testing.assert_array_equal(clamped[0, upper], plain[0, upper])
     assert np.abs(skewed[0].astype(int) - plain[0]).mean() > 0.3
     with ClothRenderer(front_camera, effects=effects) as r, pytest.raises(ValueError, match="lead"):
-        r.render_clip(clip[:1], tri, uv, texture, _background(), rng=_rng(), lead=1)
+        r.render_clip(clip[:2], tri, uv, texture, _background(), rng=_rng(), lead=1, trail=1)
 
 
 def test_full_pipeline_deterministic_per_seed(cloth, front_camera):

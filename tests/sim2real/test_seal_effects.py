@@ -177,8 +177,8 @@ def test_exposure_flicker_scales_whole_frames_of_the_plain_render(cloth):
 
 
 def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_path):
-    # The library's rolling shutter reads the frame before each clip's first; the set it
-    # writes has as many frames as a plain one, and they differ from the plain ones.
+    # The library's rolling shutter reads the frames beside each clip; the set it writes has
+    # as many frames as a plain one, and they differ from the plain ones.
     from sim2real.seal import seal_set
 
     spec = cloth[0]
@@ -191,5 +191,5 @@ def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_p
                  answer=answer)  # fmt: skip
         written[name] = sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*"))
     assert written["plain"] == written["rolling"]
-    first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0003.png")) for n in written]
+    first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0001.png")) for n in written]
     assert np.abs(first[0].astype(int) - first[1]).mean() > 0.1
