@@ -248,6 +248,7 @@ DETERMINISTIC_EFFECTS: tuple[str, ...] = ("vignetting", "rolling_shutter")
 RANDOM_EFFECTS: tuple[str, ...] = tuple(n for n in EFFECT_NAMES if n not in DETERMINISTIC_EFFECTS)
 """Effects with a random stream, in :data:`EFFECT_NAMES` order."""
 
+
 def rolling_shutter_offsets(effects: VisualEffects) -> np.ndarray:
     """Time of each row band relative to the frame's time [frame intervals], top band first.
 
