@@ -153,8 +153,8 @@ def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_s
 
     Rendered as ``spec`` renders them (:func:`datasets.generation.render_frames`; ``rng_seed``
     seeds the renderer's random draws), with the sealed answer's (``effects``: its entries)
-    out-of-library image effects added: a barrel lens moves the cloth and the arm before
-    rendering, the others act on the rendered frames.
+    out-of-library image effects added (with none, the plain render): a barrel lens moves the
+    cloth and the arm before rendering, the others act on the rendered frames.
     """
     from datasets.generation import render_frames, sim_look
 

@@ -172,7 +172,6 @@ def seal_set(
         density_range: Areal density factors on the basis fabric's, drawn uniformly
             (``(1, 1)``: every video at the training data's density).
     """
-    from datasets.generation import render_frames
     from simulator.cloth.rollout import simulate
 
     check_int("seed", seed, low=0)
@@ -203,9 +202,6 @@ def seal_set(
             spec.preset, clips_per_sim=clips_per_video, frames_per_clip=clip_len
         )
     ).frames_per_sim  # fmt: skip
-    # Out-of-library image effects render through open_set.
-    in_image = [e["name"] for e in answer["effects"]
-                if not e["library"] and OPEN_SET_EFFECTS[e["name"]][0] != "scene"]  # fmt: skip
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
@@ -228,17 +224,11 @@ def seal_set(
         )  # fmt: skip
         for b, i in enumerate(idx):
             plan = SimulationPlan(-1, i, sim_seeds[i], winds[i], "test")
-            if in_image:
-                frames = render_sealed_video(
-                    spec, seq, b, plan, spec.lead_in_frames, frame_count,
-                    rng_seed=[sim_seeds[i], _SEAL_STREAM, 2], effects=answer["effects"],
-                )  # fmt: skip
-            else:
-                frames, _ = render_frames(
-                    spec, seq, b, plan, spec.lead_in_frames, frame_count,
-                    capsules=seq.capsules,
-                    rng=np.random.default_rng([sim_seeds[i], _SEAL_STREAM, 2]),
-                )  # fmt: skip
+            # as the spec renders it, plus any out-of-library image effect (open_set)
+            frames = render_sealed_video(
+                spec, seq, b, plan, spec.lead_in_frames, frame_count,
+                rng_seed=[sim_seeds[i], _SEAL_STREAM, 2], effects=answer["effects"],
+            )  # fmt: skip
             _write_frames(partial / f"v{i:03d}", frames)
             density = basis.density * density_factor[i]
             rows.append(f"v{i:03d},{k[i]:.6g},{density:.6g},W{winds[i] + 1},{spec.preset.fps:g}")
