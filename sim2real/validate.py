@@ -16,7 +16,8 @@ measured closures and residual stage (:mod:`sim2real.rescore`), with today's rul
 ``confusion_rescored.png`` beside the blind table, which it leaves alone.
 ``--scored FILE`` carries a plan over machines: the rows of an earlier ``validation.json``
 stand for the sets it scored that are not finished under ``--out``, so those are neither
-sealed nor diagnosed again and the table covers the whole plan.
+sealed nor diagnosed again and the table covers the whole plan. ``--budget NAME`` diagnoses
+at ``configs/budget/NAME.yaml`` (default ``quick``); the table names it.
 """
 
 from __future__ import annotations
@@ -37,7 +38,10 @@ from .pipeline import Budget, load_run, run_diagnosis
 from .rescore import decided_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
-__all__ = ["ranking_stability", "ranks", "score_set", "set_plan", "stability_scores", "summarise"]
+__all__ = [
+    "budget_names", "load_budget", "ranking_stability", "ranks", "score_set", "set_plan",
+    "stability_scores", "summarise",
+]  # fmt: skip
 
 TARGETS = {
     "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
@@ -80,6 +84,7 @@ def score_set(result: dict, answer: dict) -> dict:
         "stage_correct": bool(_predicted_stages(result) & stages),
     }  # fmt: skip
     row["detected"] = bool(result.get("scored_rungs"))
+    row["budget"] = result.get("inputs", {}).get("budget")
     if answer["kind"] == "open":
         row["false_attribution"] = bool(ranking["explained"])
         return row
@@ -153,6 +158,7 @@ def summarise(rows: list[dict]) -> dict:
         out[key], out[f"{key}_n"] = rate(key)
     closed = [r["gap_closed"] for r in rows if r.get("gap_closed") is not None]
     out["gap_closed_median"] = float(np.median(closed)) if closed else None
+    out["budgets"] = sorted({r["budget"] for r in rows if r.get("budget")})
     out["open_false_attribution"], out["open_n"] = rate("false_attribution")
     for key in ("kendall_tau", "weighted_tau", "kendall_tau_all"):
         taus = [r[key] for r in rows if key in r]
@@ -223,7 +229,9 @@ def _table(summary: dict, rows: list[dict]) -> str:
     def pct(v):
         return "–" if v is None else f"{100 * v:.0f} %"
 
+    budgets = summary.get("budgets")
     lines = [
+        *([f"Diagnosed at budget {', '.join(budgets)} (configs/budget/).", ""] if budgets else []),
         "| measure | target | measured | sets |", "|---|---|---|---|",
         f"| stage correct | >= 90 % | {pct(summary['stage_correct'])} | "
         f"{summary['stage_correct_n']} |",
@@ -339,6 +347,25 @@ def scored_rows(paths: list[str], plan: list[tuple]) -> dict[int, dict]:
     return rows
 
 
+BUDGETS = Path(__file__).resolve().parents[1] / "configs" / "budget"
+"""The budget configs that ``python -m sim2real.diagnose budget=NAME`` also reads."""
+
+
+def budget_names() -> list[str]:
+    """Names of the budget configs (``configs/budget/*.yaml``)."""
+    return sorted(p.stem for p in BUDGETS.glob("*.yaml"))
+
+
+def load_budget(name: str) -> Budget:
+    """The :class:`~sim2real.pipeline.Budget` of ``configs/budget/NAME.yaml``."""
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    if name not in budget_names():
+        raise ValueError(f"--budget must be one of {', '.join(budget_names())}, got {name!r}")
+    return instantiate(OmegaConf.load(BUDGETS / f"{name}.yaml"))
+
+
 def _diagnosed(out_dir: Path, common: dict) -> dict:
     """The diagnosis of one sealed set: its finished report, else a fresh run.
 
@@ -376,6 +403,11 @@ def main(argv: list[str] | None = None) -> None:
         "diagnoses of the same run to reuse their candidate sets",
     )
     parser.add_argument("--n-jobs", type=int, default=2)
+    parser.add_argument(
+        "--budget",
+        default="quick",
+        help=f"budget of every diagnosis: one of {', '.join(budget_names())} (configs/budget/)",
+    )
     parser.add_argument(
         "--finished-only",
         action="store_true",
@@ -421,6 +453,7 @@ def main(argv: list[str] | None = None) -> None:
     args.finished_only = args.finished_only or args.rescore
     out = Path(args.out)
     try:
+        budget = load_budget(args.budget)
         base, _ = load_run(args.run, args.data_dir)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
@@ -462,7 +495,7 @@ def main(argv: list[str] | None = None) -> None:
         common = {
             "real_dir": real, "run": args.run, "data_dir": args.data_dir,
             "cache_dir": Path(args.cache_dir) if args.cache_dir else out / "cache",
-            "mesh_cache": args.mesh_cache, "budget": Budget(),
+            "mesh_cache": args.mesh_cache, "budget": budget,
             "candidates": args.candidates.split(","), "n_jobs": args.n_jobs, "progress": False,
         }  # fmt: skip
         result = _diagnosed(out / "reports" / real.name, common)

@@ -398,7 +398,7 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
                     "top": "visual.sensor_noise", "explained": True},
         "candidates": {"visual.sensor_noise": {"stage": "camera", "best_score": 0.9,
                                                "strength_interval": [4.0, 8.0]}},
-        "scored_rungs": ["pixel"], "residual_stage": "",
+        "scored_rungs": ["pixel"], "residual_stage": "", "inputs": {"budget": "quick"},
     }  # fmt: skip
     _merged(out, report, world["answer"])
     args = ["--kinds", "single:2", "--first-seed", "1", "--sets", "0", "--finished-only",
@@ -409,7 +409,12 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
     assert rows[0]["strength_in_interval"]
     assert not (out / "sets").exists()  # set 2 was neither sealed nor diagnosed
     assert (out / "validation.md").is_file() and (out / "confusion.png").is_file()
+    assert (out / "validation.md").read_text().startswith("Diagnosed at budget quick")
     capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        validate([*args, "--budget", "tiny"])
+    assert stop.value.code == 2
+    assert "--budget must be one of full, quick" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stop:
         validate([*args[:-1], str(tmp_path / "empty")])
     assert stop.value.code == 2

@@ -2,7 +2,14 @@
 
 import pytest
 
-from sim2real.validate import ranking_stability, score_set, stability_scores, summarise
+from sim2real.validate import (
+    budget_names,
+    load_budget,
+    ranking_stability,
+    score_set,
+    stability_scores,
+    summarise,
+)
 
 
 def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="none"):
@@ -160,3 +167,12 @@ def test_a_fixed_single_effect_keeps_a_drawn_strength():
     assert effect["name"] == "visual.sensor_noise" and 2.0 <= effect["strength"] <= 8.0
     with pytest.raises(ValueError, match="effect"):
         draw_answer(7, library, "pair", "visual.sensor_noise")
+
+
+def test_validation_reads_the_budget_configs_that_the_diagnosis_reads():
+    assert {"quick", "full"} <= set(budget_names())
+    quick, full = load_budget("quick"), load_budget("full")
+    assert (quick.name, quick.sims_per_class, tuple(quick.class_grid)) == ("quick", 6, (3, 3))
+    assert (full.name, full.strengths) == ("full", 5)
+    with pytest.raises(ValueError, match=r"--budget must be one of .*quick.*got 'fast'"):
+        load_budget("fast")
