@@ -26,7 +26,8 @@ see :mod:`simulator.threads`). ``--batch-sizes 54,540`` adds larger batches (the
 cycled), which is what a GPU needs to fill; ``--reference-backend none`` skips the accuracy
 reference (on CUDA the torch path's tight reference solve is launch-bound and slow; its
 agreement with the CPU is a test, ``test_cuda_matches_cpu_when_available``).
-Runs on CUDA when present (the torch path; the kernels are CPU-only).
+Runs on CUDA when present (the torch path; the kernels, a kernels reference too, run on the
+CPU beside it).
 The last line is JSON; its top level holds the headline backend's ``backend``,
 ``pos_err_mean_m``, ``pos_err_max_m``, ``single_speedup_vs_mujoco`` and
 ``ratio_batch54_vs_mujoco``, and ``runs`` every backend's figures.
@@ -70,11 +71,16 @@ REFERENCE = NewtonSettings(max_iters=10, tol_dx=1e-9, cg_rtol=1e-10, cg_max_iter
 (``tests/simulator/core/test_kernels.py``), the kernels in minutes instead of about 20."""
 
 
+def bench_device(backend: str) -> str:
+    """Where ``sim.backend`` runs: the kernels on the CPU, the torch path on CUDA when present."""
+    return "cuda" if backend != "kernels" and torch.cuda.is_available() else "cpu"
+
+
 def run_ours(classes: list[int], dtype: torch.dtype, settings: NewtonSettings) -> dict:
     """Time ``DURATION / DT`` steps of the wind scene for a batch of classes."""
     scene = ScenarioWind(resolution_level=3, pose="corners", settle_time=0.0, ramp_time=0.25)
     material = ClothMaterial.from_classes(classes)
-    device = "cuda" if torch.cuda.is_available() else "cpu"
+    device = bench_device(settings.backend)
     model, state, driver = scene.build(
         material,
         seeds=list(range(len(classes))),
@@ -169,7 +175,7 @@ def main(argv: list[str] | None = None) -> dict:
     for backend in backends:
         if backend not in BENCH_BACKENDS:
             parser.error(f"--backends: each must be one of {list(BENCH_BACKENDS)}, got {backend!r}")
-        resolve_backend(BENCH_BACKENDS[backend][0], "cuda" if torch.cuda.is_available() else "cpu")
+        resolve_backend(BENCH_BACKENDS[backend][0], bench_device(BENCH_BACKENDS[backend][0]))
     dtype = getattr(torch, args.dtype)
     verts = 32 * 32
     reference = None
