@@ -17,7 +17,9 @@ measured closures and residual stage (:mod:`sim2real.rescore`), with today's rul
 ``--scored FILE`` carries a plan over machines: the rows of an earlier ``validation.json``
 stand for the sets it scored that are not finished under ``--out``, so those are neither
 sealed nor diagnosed again and the table covers the whole plan. ``--budget NAME`` diagnoses
-at ``configs/budget/NAME.yaml`` (default ``quick``); the table names it.
+at ``configs/budget/NAME.yaml`` (default ``quick``); the table names it. ``--stability N``
+reruns N sets spread evenly over the plan at simulation seeds 1 and 2 and reports the
+rankings' Kendall tau, overall and per kind of set.
 """
 
 from __future__ import annotations
@@ -127,6 +129,18 @@ def ranking_stability(rankings: list[list[str]], *, weighted: bool = False) -> f
     return float(np.mean(taus))
 
 
+def stability_positions(plan_size: int, count: int) -> set[int]:
+    """Plan positions of the ``count`` sets rerun at simulation seeds 1 and 2.
+
+    Spread evenly over the plan (``round(i * plan_size / count)``), so that the ranking's
+    stability is measured on every kind of set in proportion to the plan. The first ``count``
+    positions, used before, are all open sets in an ``open:4,...`` plan: there every candidate
+    closes about nothing and the order of that tied cluster is the simulation draw's.
+    """
+    count = min(max(count, 0), plan_size)
+    return {round(i * plan_size / count) for i in range(count)} if count else set()
+
+
 def stability_scores(results: list[dict]) -> dict:
     """Taus of one sealed set's diagnoses under several simulation seeds.
 
@@ -164,6 +178,11 @@ def summarise(rows: list[dict]) -> dict:
         taus = [r[key] for r in rows if key in r]
         out[key] = float(np.mean(taus)) if taus else None
         out[f"{key}_n"] = len(taus)
+    kinds = sorted({r["kind"] for r in rows if "kendall_tau" in r}, key=str)
+    out["kendall_tau_by_kind"] = {
+        str(kind): _mean(r["kendall_tau"] for r in rows if "kendall_tau" in r and r["kind"] == kind)
+        for kind in kinds
+    }
     out["detected"], out["detected_n"] = rate("detected", ("single", "pair"))
     found = [r for r in rows if r.get("detected") and "top1" in r]  # library effects only
     out["top1_detected"], out["top1_detected_n"] = (
@@ -246,6 +265,10 @@ def _table(summary: dict, rows: list[dict]) -> str:
         "| ranking stability (Kendall tau, 3 simulation seeds) | >= 0.8 | "
         + ("–" if summary["kendall_tau"] is None else f"{summary['kendall_tau']:.2f}")
         + f" | {summary['kendall_tau_n']} |",
+        *(
+            f"| ranking stability on {kind} sets (Kendall tau) | – | {tau:.2f} | {n} |"
+            for kind, (tau, n) in summary.get("kendall_tau_by_kind", {}).items()
+        ),
         "| ranking stability (top-weighted tau, same draws) | – | "
         + ("–" if summary["weighted_tau"] is None else f"{summary['weighted_tau']:.2f}")
         + f" | {summary['weighted_tau_n']} |",
@@ -439,7 +462,8 @@ def main(argv: list[str] | None = None) -> None:
         "--stability",
         type=int,
         default=0,
-        help="on the first N sets also diagnose with sim_seed 1 and 2 (Kendall tau)",
+        help="on N sets spread evenly over the whole plan (positions round(i * plan / N), "
+        "whatever --skip and --sets run) also diagnose with sim_seed 1 and 2 (Kendall tau)",
     )
     args = parser.parse_args(argv)
     if not 0 < args.open_set_threshold <= 1:
@@ -465,11 +489,10 @@ def main(argv: list[str] | None = None) -> None:
     library = candidate_library(base)
     try:
         plan = set_plan(args.kinds, sorted(library), args.first_seed)
-        if plan is None:
-            seeds = range(args.first_seed, args.first_seed + args.sets)
-            plan = [(seed, None, None) for seed in seeds]
-        else:
-            plan = plan[args.skip :][: args.sets or None]
+        seeds = range(args.first_seed, args.first_seed + args.sets)
+        whole = plan if plan is not None else [(seed, None, None) for seed in seeds]
+        rerun = {whole[i][0] for i in stability_positions(len(whole), args.stability)}
+        plan = whole if plan is None else whole[args.skip :][: args.sets or None]
         earlier = scored_rows(args.scored, plan)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -500,7 +523,7 @@ def main(argv: list[str] | None = None) -> None:
         }  # fmt: skip
         result = _diagnosed(out / "reports" / real.name, common)
         reruns = [result]
-        if len(rows) < args.stability:
+        if seed in rerun:
             for sim_seed in (1, 2):
                 folder = out / "reports" / f"{real.name}-sim{sim_seed}"
                 if args.finished_only and not (folder / "report.json").is_file():

@@ -437,6 +437,38 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
     assert err.startswith("error: --scored") and "kind 'open'" in err and "'single'" in err
 
 
+def test_a_shard_reads_the_reruns_of_its_stability_position(world, tmp_path):
+    from sim2real.validate import main as validate
+
+    root, out = world["root"], tmp_path / "merged"
+    report = {
+        "ranking": {"ranking": ["visual.sensor_noise", "visual.defocus_blur", "visual.shadows"],
+                    "top": "visual.sensor_noise", "explained": True},
+        "candidates": {n: {"stage": "camera", "best_score": s, "strength_interval": [4.0, 8.0]}
+                       for n, s in (("visual.sensor_noise", 0.9), ("visual.defocus_blur", 0.2),
+                                    ("visual.shadows", 0.1))},
+        "scored_rungs": ["pixel"], "residual_stage": "", "inputs": {"budget": "quick"},
+    }  # fmt: skip
+    _merged(out, report, world["answer"])
+    swapped = {**report, "ranking": {**report["ranking"], "ranking": [
+        "visual.sensor_noise", "visual.shadows", "visual.defocus_blur"]}}  # fmt: skip
+    for sim_seed, stored in ((1, report), (2, swapped)):
+        (out / "reports" / f"set1-sim{sim_seed}").mkdir()
+        (out / "reports" / f"set1-sim{sim_seed}" / "report.json").write_text(json.dumps(stored))
+    # plan single:3 from seed 0: --stability 2 reruns positions 0 and 2 (seeds 0 and 2), not
+    # seed 1, so the finished set 1 is scored without a tau
+    args = ["--kinds", "single:3", "--first-seed", "0", "--finished-only", "--run",
+            str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]  # fmt: skip
+    validate([*args, "--sets", "0", "--stability", "2"])
+    (row,) = json.loads((out / "validation.json").read_text())["sets"]
+    assert "kendall_tau" not in row
+    # --stability 3 takes every position; a shard of position 1 alone (--skip 1) reads its reruns
+    validate([*args, "--skip", "1", "--sets", "1", "--stability", "3"])
+    data = json.loads((out / "validation.json").read_text())
+    assert data["sets"][0]["kendall_tau"] == pytest.approx((1 + 1 / 3 + 1 / 3) / 3)
+    assert "ranking stability on single sets (Kendall tau)" in (out / "validation.md").read_text()
+
+
 def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_path, capsys):
     from sim2real.validate import main as validate
 

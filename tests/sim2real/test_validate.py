@@ -7,6 +7,7 @@ from sim2real.validate import (
     load_budget,
     ranking_stability,
     score_set,
+    stability_positions,
     stability_scores,
     summarise,
 )
@@ -176,3 +177,23 @@ def test_validation_reads_the_budget_configs_that_the_diagnosis_reads():
     assert (full.name, full.strengths) == ("full", 5)
     with pytest.raises(ValueError, match=r"--budget must be one of .*quick.*got 'fast'"):
         load_budget("fast")
+
+
+def test_stability_sets_are_spread_over_the_plan_so_every_kind_is_measured():
+    from sim2real.validate import set_plan
+
+    assert stability_positions(32, 6) == {0, 5, 11, 16, 21, 27}
+    assert stability_positions(32, 3) == {0, 11, 21}
+    assert stability_positions(5, 10) == set(range(5)) and stability_positions(32, 0) == set()
+    plan = set_plan("open:4,single:22,pair:6", [f"e{i}" for i in range(22)], 0)
+    kinds = [plan[i][1] for i in sorted(stability_positions(len(plan), 6))]
+    assert kinds == ["open", "single", "single", "single", "single", "pair"]  # as the plan's mix
+
+
+def test_the_summary_gives_the_ranking_stability_per_kind_of_set():
+    rows = [{"kind": "open", "kendall_tau": 0.7}, {"kind": "open", "kendall_tau": 0.8},
+            {"kind": "single", "kendall_tau": 0.9}, {"kind": "single"}]  # fmt: skip
+    summary = summarise(rows)
+    assert summary["kendall_tau"] == pytest.approx(0.8) and summary["kendall_tau_n"] == 3
+    by_kind = summary["kendall_tau_by_kind"]
+    assert by_kind["open"] == (pytest.approx(0.75), 2) and by_kind["single"] == (0.9, 1)
