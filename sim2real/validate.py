@@ -42,7 +42,7 @@ from .seal import SEAL_KINDS, draw_answer, seal_set
 
 __all__ = [
     "budget_names", "load_budget", "ranking_stability", "ranks", "score_set", "set_plan",
-    "stability_scores", "summarise",
+    "stability_positions", "stability_scores", "summarise",
 ]  # fmt: skip
 
 TARGETS = {
@@ -133,8 +133,8 @@ def stability_positions(plan_size: int, count: int) -> set[int]:
     """Plan positions of the ``count`` sets rerun at simulation seeds 1 and 2.
 
     Spread evenly over the plan (``round(i * plan_size / count)``), so that the ranking's
-    stability is measured on every kind of set in proportion to the plan. The first ``count``
-    positions, used before, are all open sets in an ``open:4,...`` plan: there every candidate
+    stability is measured on every kind of set in proportion to the plan. The first three
+    positions, used before, are open sets in an ``open:4,...`` plan: there every candidate
     closes about nothing and the order of that tied cluster is the simulation draw's.
     """
     count = min(max(count, 0), plan_size)
