@@ -13,8 +13,9 @@ effects not picked up here still left a gap), though real footage also has nuisa
 
 A candidate set whose features equal S's on every rung is *inert*: S_e shares S's simulation
 seeds and render draws, so an effect that changes nothing leaves every feature bit for bit
-the same (self-collision in the wind scene: no two layers of the cloth ever come within
-contact distance). No set of footage can reveal an inert effect.
+the same. No set of footage can reveal an inert effect. (Self-collision in the wind scene makes
+no contact, yet it is not inert: switching it on changes the step's round-off, which reaches
+the features; its sets differ from S by at most 0.012 of the between-video spread.)
 """
 
 from __future__ import annotations
