@@ -125,15 +125,6 @@ def frames_digest(folder: Path) -> str:
     return digest.hexdigest()
 
 
-def _diagnosed(real: Path, report: Path, common: dict) -> dict:
-    from sim2real.pipeline import run_diagnosis
-
-    path = report / "report.json"
-    if path.is_file():
-        return json.loads(path.read_text())
-    return run_diagnosis(real_dir=real, out_dir=report, **common)
-
-
 def _row(tag: str, seed: int, identical: bool, detection: dict, size: dict,
          result: dict | None = None, name: str | None = None) -> dict:
     row = {
@@ -215,7 +206,7 @@ def main(argv: list[str] | None = None) -> None:
     from sim2real.pipeline import load_run
     from sim2real.power import nominal_draws, pooled_detection, report_real_features
     from sim2real.seal import seal_set
-    from sim2real.validate import load_budget
+    from sim2real.validate import _diagnosed, load_budget
 
     try:
         budget = load_budget(args.budget)
@@ -255,7 +246,7 @@ def main(argv: list[str] | None = None) -> None:
 
     # The first twin's diagnosis builds S and S' and fixes the box for every set.
     first = sealed(out / "sets" / f"twin-{args.first_seed}", args.first_seed, [])
-    reference = _diagnosed(first, out / "reports" / first.name, common)
+    reference = _diagnosed(out / "reports" / first.name, {**common, "real_dir": first})
     inputs = reference["inputs"]
     draws = nominal_draws(inputs, 2, n_jobs=args.n_jobs)
     settings = {"n_perm": inputs["budget_settings"]["n_perm"], "seed": inputs["seed"],
@@ -282,7 +273,7 @@ def main(argv: list[str] | None = None) -> None:
             size["name"] = feature_name(size["rung"], size["feature"])
             result = None
             if args.diagnose:
-                result = _diagnosed(folder, out / "reports" / folder.name, common)
+                result = _diagnosed(out / "reports" / folder.name, {**common, "real_dir": folder})
             # No gap test against the twin itself: its videos are the planted set's, so
             # group permutations that split a pair inflate the null (p near 1 even for
             # effects the diagnosis names); the effect size is the paired measure.
