@@ -22,7 +22,9 @@ blind rounds never found, whether that is the footage's limit or the diagnosis's
    108 simulations, on one feature chosen in advance, needs about 0.40 for 80 % power at
    alpha 0.05 (2.80 x sqrt(1/90 + 1/108)): an effect whose largest change stays well below
    it leaves nothing that a test of one feature could find (a classifier over many features
-   can combine several smaller shifts: this bounds one feature, not every test).
+   can combine several smaller shifts: this bounds one feature, not every test). Beside it,
+   the same change over the spread left once the labelled materials and wind are regressed
+   out (fitted on the twin): what a test conditioned on ``labels.csv`` would have to find.
    ``--diagnose`` also runs the whole diagnosis on every planted set (several minutes each)
    and reports what it names, and the planted effect's rank and closure.
 
@@ -75,13 +77,18 @@ def parse_effect(text: str, library: dict) -> dict:
     return {"name": name, "stage": candidate.stage, "strength": strength, "library": True}
 
 
-def paired_effect_size(planted, twin) -> dict:
+def paired_effect_size(planted, twin, covariates: np.ndarray | None = None) -> dict:
     """Largest standardised per-video change between two feature sets of the same videos.
 
     Both are :class:`~sim2real.ladder.LadderFeatures` of one sealed set with and without an
     effect (same videos, same clip cut). Per rung and feature: |mean over videos of the
     per-video mean change| / (between-video SD of the per-video means, pooled over the two:
     Cohen's d, the shift an unpaired test has to find; infinite where neither varies).
+
+    With ``covariates`` (one row per video in sorted video order, e.g. :func:`label_design`)
+    it also gives ``d_adjusted``: the same change over the SD that is left once a least-squares
+    fit on the covariates (fitted to the twin) is taken out of both sets, the shift a test
+    conditioned on the labelled materials and wind would have to find.
     """
     videos = sorted(set(twin.groups.tolist()))
     if sorted(set(planted.groups.tolist())) != videos:
@@ -91,19 +98,49 @@ def paired_effect_size(planted, twin) -> dict:
         rows = features.rungs[rung]
         return np.stack([rows[features.groups == v].mean(axis=0) for v in videos])
 
+    def standardised(change, a, b, ddof):
+        spread = np.sqrt(0.5 * (a.var(axis=0, ddof=ddof) + b.var(axis=0, ddof=ddof)))
+        return np.where(spread > 0, change / np.where(spread > 0, spread, 1.0),
+                        np.where(change > 0, np.inf, 0.0))  # fmt: skip
+
+    if covariates is not None and len(covariates) != len(videos):
+        raise ValueError(f"covariates: {len(covariates)} rows for {len(videos)} videos")
     best = {"d": 0.0, "rung": None, "feature": None}
-    per_rung = {}
+    per_rung, adjusted = {}, 0.0
     for rung in twin.rungs:
         a, b = per_video(planted, rung), per_video(twin, rung)
         change = np.abs((a - b).mean(axis=0))
-        spread = np.sqrt(0.5 * (a.var(axis=0, ddof=1) + b.var(axis=0, ddof=1)))
-        d = np.where(spread > 0, change / np.where(spread > 0, spread, 1.0),
-                     np.where(change > 0, np.inf, 0.0))  # fmt: skip
+        d = standardised(change, a, b, 1)
         j = int(np.argmax(d))
         per_rung[rung] = float(d[j])
         if d[j] > best["d"]:
             best = {"d": float(d[j]), "rung": rung, "feature": j}
-    return {**best, "per_rung": per_rung}
+        if covariates is not None:
+            fit = covariates @ np.linalg.lstsq(covariates, b, rcond=None)[0]
+            adjusted = max(adjusted, float(
+                standardised(change, a - fit, b - fit, covariates.shape[1]).max()))  # fmt: skip
+    out = {**best, "per_rung": per_rung}
+    if covariates is not None:
+        out["d_adjusted"] = adjusted
+    return out
+
+
+def label_design(labels_csv: Path) -> np.ndarray:
+    """The labels a material-conditioned test would take out, one row per video by name.
+
+    Intercept, log stiffness and log density, their squares and product, and one column per
+    wind level but the first.
+    """
+    import csv
+
+    with open(labels_csv, newline="") as handle:
+        rows = sorted(csv.DictReader(handle), key=lambda r: r["video"])
+    winds = sorted({r["wind"] for r in rows})
+    out = []
+    for r in rows:
+        s, d = np.log(float(r["stiffness"])), np.log(float(r["density"]))
+        out.append([1.0, s, d, s * s, d * d, s * d] + [float(r["wind"] == w) for w in winds[1:]])
+    return np.array(out)
 
 
 def feature_name(rung: str | None, index: int | None) -> str:
@@ -133,6 +170,7 @@ def _row(tag: str, seed: int, identical: bool, detection: dict, size: dict,
         "rungs": detection["rungs"], "named": None, "rank": None, "closure": None,
         "effect_size": size.get("d"), "effect_size_feature": size.get("name"),
         "effect_size_per_rung": size.get("per_rung"),
+        "effect_size_adjusted": size.get("d_adjusted"),
     }  # fmt: skip
     if result is not None:
         ranking = result["ranking"]
@@ -148,8 +186,8 @@ def _table(rows: list[dict], needed: float) -> str:
         f"Needed for 80 % power on one pre-chosen feature: effect size (Cohen's d) {needed:.2f}.",
         "",
         "| planted | seed | frames = twin's | gap p | gap | rungs (own p < alpha) | named | rank "
-        "| closure | largest effect size (feature) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| closure | largest effect size (feature) | with materials and wind taken out |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         size = (
@@ -157,10 +195,12 @@ def _table(rows: list[dict], needed: float) -> str:
             else f"{r['effect_size']:.3f} ({r['effect_size_feature']})"
         )  # fmt: skip
         closure = "–" if r["closure"] is None else f"{r['closure']:.0%}"
+        adjusted = r.get("effect_size_adjusted")
+        adjusted = "–" if adjusted is None else f"{adjusted:.3f}"
         lines.append(
             f"| {r['effect']} | {r['seed']} | {'yes' if r['identical_to_twin'] else 'no'} | "
             f"{r['gap_p']:.3g} | {'yes' if r['gap'] else 'no'} | {', '.join(r['rungs']) or '–'} | "
-            f"{r['named'] or '–'} | {r['rank'] or '–'} | {closure} | {size} |"
+            f"{r['named'] or '–'} | {r['rank'] or '–'} | {closure} | {size} | {adjusted} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -171,6 +211,8 @@ def summarise(rows: list[dict]) -> dict:
     for tag in dict.fromkeys(r["effect"] for r in rows):
         mine = [r for r in rows if r["effect"] == tag]
         sizes = [r["effect_size"] for r in mine if r["effect_size"] is not None]
+        adjusted = [r["effect_size_adjusted"] for r in mine
+                    if r.get("effect_size_adjusted") is not None]  # fmt: skip
         out[tag] = {
             "sets": len(mine), "gap_found": sum(r["gap"] for r in mine),
             "named_first": sum(r["named"] == tag.split("=")[0] for r in mine),
@@ -179,6 +221,7 @@ def summarise(rows: list[dict]) -> dict:
             "gap_p_median": float(np.median([r["gap_p"] for r in mine])),
             "effect_size_median": float(np.median(sizes)) if sizes else None,
             "effect_size_max": float(max(sizes)) if sizes else None,
+            "effect_size_adjusted_max": float(max(adjusted)) if adjusted else None,
         }  # fmt: skip
     return out
 
@@ -269,7 +312,7 @@ def main(argv: list[str] | None = None) -> None:
             folder = sealed(out / "sets" / f"e{i}-{seed}", seed, [effect])
             identical = frames_digest(folder) == twin_digest
             found = twin_features if identical else features(folder)
-            size = paired_effect_size(found, twin_features)
+            size = paired_effect_size(found, twin_features, label_design(twin_dir / "labels.csv"))
             size["name"] = feature_name(size["rung"], size["feature"])
             result = None
             if args.diagnose:

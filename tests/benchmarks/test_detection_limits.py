@@ -5,6 +5,7 @@ import pytest
 
 from benchmarks.detection_limits import (
     frames_digest,
+    label_design,
     needed_effect_size,
     paired_effect_size,
     parse_effect,
@@ -93,3 +94,30 @@ def test_the_frames_digest_sees_a_changed_byte_and_ignores_the_labels(tmp_path):
     assert frames_digest(tmp_path / "a") == frames_digest(tmp_path / "b")
     (tmp_path / "b" / "v000" / "0000.png").write_bytes(b"\x89PNG diff")
     assert frames_digest(tmp_path / "a") != frames_digest(tmp_path / "b")
+
+
+def test_taking_out_the_labelled_materials_leaves_the_shift_over_the_residual_spread(tmp_path):
+    rng = np.random.default_rng(1)
+    videos, clips = 300, 2
+    stiffness = np.exp(rng.uniform(-1, 2, videos))
+    density = rng.uniform(0.1, 0.4, videos)
+    winds = rng.choice(["W1", "W2", "W3"], videos)
+    labels = zip(stiffness, density, winds, strict=True)
+    rows = "\n".join(f"v{i:03d},{s:.6g},{d:.6g},{w},15" for i, (s, d, w) in enumerate(labels))
+    (tmp_path / "labels.csv").write_text("video,stiffness,density,wind,fps\n" + rows + "\n")
+    design = label_design(tmp_path / "labels.csv")
+    assert design.shape == (videos, 8) and np.all(design[:, 0] == 1.0)
+    # The feature is mostly the material (SD 3) plus a per-video residual (SD 1).
+    material = 3.0 * np.log(stiffness) / np.log(stiffness).std() + 2.0 * (winds == "W3")
+    per_video = material + rng.normal(size=videos)
+    twin = {"motion": np.repeat(per_video[:, None], clips, axis=0)}
+    planted = {"motion": twin["motion"] + 0.3}
+    size = paired_effect_size(_features(planted, videos, clips), _features(twin, videos, clips),
+                              design)  # fmt: skip
+    assert size["d"] < 0.12  # 0.3 over the whole spread, about 3.5
+    assert size["d_adjusted"] == pytest.approx(0.3, rel=0.15)  # 0.3 over the residual 1
+    assert "d_adjusted" not in paired_effect_size(
+        _features(planted, videos, clips), _features(twin, videos, clips))
+    with pytest.raises(ValueError, match="covariates"):
+        paired_effect_size(_features(planted, videos, clips), _features(twin, videos, clips),
+                           design[:-1])  # fmt: skip
