@@ -34,6 +34,7 @@ __all__ = [
     "DETERMINISTIC_EFFECTS",
     "EFFECT_NAMES",
     "IMAGE_EFFECT_ORDER",
+    "IMAGE_EFFECT_PARAMETERS",
     "RANDOM_EFFECTS",
     "RENDER_EFFECTS",
     "FrameRateMode",
@@ -222,6 +223,19 @@ class VisualEffects:
         """The switch values by name."""
         return {name: getattr(self, name) for name in EFFECT_NAMES}
 
+    def before_image_effects(self) -> VisualEffects:
+        """These effects with every image effect off and its parameters at their defaults.
+
+        What :meth:`render.renderer.ClothRenderer.render_clip` draws before it applies the
+        image effects (:data:`IMAGE_EFFECT_ORDER`, :data:`IMAGE_EFFECT_PARAMETERS`): two
+        settings that differ only in image effects give the same value, so their renders
+        can be shared.
+        """
+        defaults = VisualEffects()
+        reset = dict.fromkeys(IMAGE_EFFECT_ORDER, False)
+        reset.update({name: getattr(defaults, name) for name in IMAGE_EFFECT_PARAMETERS})
+        return dataclasses.replace(self, **reset)
+
 
 EFFECT_NAMES: tuple[str, ...] = tuple(
     f.name for f in dataclasses.fields(VisualEffects) if f.type == "bool"
@@ -240,6 +254,19 @@ IMAGE_EFFECT_ORDER: tuple[str, ...] = (
 
 RENDER_EFFECTS: tuple[str, ...] = tuple(n for n in EFFECT_NAMES if n not in IMAGE_EFFECT_ORDER)
 """Effects the renderer itself implements."""
+
+IMAGE_EFFECT_PARAMETERS: tuple[str, ...] = (
+    "frame_rate_ratio",
+    "frame_rate_mode",
+    "defocus_radius_min_px",
+    "defocus_radius_max_px",
+    "vignetting_strength",
+    "noise_read_sigma",
+    "noise_shot_gain",
+    "white_balance_shift",
+    "jpeg_quality",
+)
+"""The image effects' parameters: :func:`apply_image_effects` reads them, the renderer not."""
 
 
 DETERMINISTIC_EFFECTS: tuple[str, ...] = ("vignetting", "rolling_shutter")

@@ -14,14 +14,19 @@ from the training span (:func:`prior_materials`), labelled with the nearest clas
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io
+from pathlib import Path
 
 import numpy as np
 
 from datasets.generation import render_frames, simulate_unit
-from datasets.plan import WorkUnit, plan_units
+from datasets.plan import SimulationPlan, WorkUnit, plan_units
 from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
+from render.effects import IMAGE_EFFECT_ORDER, apply_image_effects
 from simulator.cloth.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
+from simulator.sequence import MeshSequence, atomic_write_bytes
 
 __all__ = ["ClipSet", "diagnosis_spec", "prior_materials", "real_clips", "simulated_clips"]
 
@@ -125,6 +130,7 @@ def simulated_clips(
     *,
     clip_len: int | None = None,
     clip_stride: int | None = None,
+    render_cache=None,
 ) -> ClipSet:
     """Simulate (or load cached meshes) and render every simulation of ``spec`` as clips.
 
@@ -133,6 +139,13 @@ def simulated_clips(
         mesh_cache: Mesh-cache folder (shared with ``datasets.generate``).
         clip_len: Frames per clip (default: the preset's).
         clip_stride: Frames between clip starts (default: ``clip_len``).
+        render_cache: Folder of rendered frames before the image effects
+            (:data:`render.effects.IMAGE_EFFECT_ORDER`), or ``None``. A set with image
+            effects on then renders its meshes without them (or reads that render) and
+            applies its image effects on top: the same bytes as rendering it whole, and the
+            sets that differ only in those effects (noise, compression, white balance,
+            defocus, vignetting and their strengths) share one render. Not with a frame-rate
+            change, which sets how many frames are simulated.
 
     Returns:
         The clips; groups are simulation ids.
@@ -140,6 +153,10 @@ def simulated_clips(
     clip_len = clip_len or spec.preset.frames_per_clip
     clip_stride = clip_stride or clip_len
     basis_density = load_wang_material(BASIS_MATERIAL).density
+    base = None
+    shared = render_cache is not None and not spec.visual.frame_rate
+    if shared and any(getattr(spec.visual, n) for n in IMAGE_EFFECT_ORDER):
+        base = dataclasses.replace(spec, visual=spec.visual.before_image_effects())
     rows: dict[str, list] = {k: [] for k in ("frames", "coverage", "groups", "class_id", "k")}
     for unit in plan_units(spec):
         p, k = prior_materials(spec, unit)
@@ -148,10 +165,18 @@ def simulated_clips(
         capsules = seq.capsules
         start, stop = spec.lead_in_frames, spec.frames_per_sim
         for b, sim in enumerate(unit.sims):
-            frames, coverage = render_frames(
-                spec, seq, b, sim, start, stop, capsules=capsules,
-                rng=np.random.default_rng([sim.seed, _VIDEO_STREAM, 0]),
-            )  # fmt: skip
+            rng = np.random.default_rng([sim.seed, _VIDEO_STREAM, 0])
+            if base is None:
+                frames, coverage = render_frames(
+                    spec, seq, b, sim, start, stop, capsules=capsules, rng=rng
+                )
+            else:
+                frames, coverage = _base_render(
+                    base, seq, b, sim, start, stop, capsules, Path(render_cache)
+                )
+                # render_clip draws its effect streams from the clip's Generator once, first:
+                # a fresh Generator of the same seed gives the image effects the same streams.
+                frames, coverage = apply_image_effects(frames, spec.visual, rng, coverage)
             for first in clip_starts(len(frames), clip_len, clip_stride):
                 rows["frames"].append(frames[first : first + clip_len])
                 rows["coverage"].append(coverage[first : first + clip_len])
@@ -172,6 +197,35 @@ def simulated_clips(
         density=np.full(count, basis_density),
         coverage=np.stack(rows["coverage"]),
     )
+
+
+def _base_render(
+    base: DatasetSpec,
+    seq: MeshSequence,
+    b: int,
+    sim: SimulationPlan,
+    start: int,
+    stop: int,
+    capsules,
+    folder: Path,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frames and coverage of one simulation as ``base`` (no image effect) renders them.
+
+    Read from ``folder`` when a set with the same meshes and render settings put them there
+    (keyed by ``base``'s content key, the simulation and the frame range), else rendered and
+    written there atomically (compressed: about 0.8 MB a simulation at 112 px).
+    """
+    text = f"{base.key()}|{sim.sim_id}|{start}|{stop}"
+    path = folder / f"{hashlib.sha256(text.encode()).hexdigest()[:20]}.npz"
+    if path.is_file():
+        with np.load(path) as stored:
+            return stored["frames"], stored["coverage"]
+    rng = np.random.default_rng([sim.seed, _VIDEO_STREAM, 0])
+    frames, coverage = render_frames(base, seq, b, sim, start, stop, capsules=capsules, rng=rng)
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, frames=frames, coverage=coverage)
+    atomic_write_bytes(path, buffer.getvalue())
+    return frames, coverage
 
 
 def real_clips(

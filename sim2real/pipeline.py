@@ -217,8 +217,9 @@ def build_set(job: SetJob, context: SetContext, threads: int = 1) -> tuple[str, 
         return str(path), {}
     start = time.perf_counter()
     clips = simulated_clips(
-        job.spec, context.mesh_cache, clip_len=context.clip_len, clip_stride=context.clip_stride
-    )
+        job.spec, context.mesh_cache, clip_len=context.clip_len, clip_stride=context.clip_stride,
+        render_cache=Path(context.cache_dir) / "renders",
+    )  # fmt: skip
     middle = time.perf_counter()
     features = ladder_features(clips, context.box, _net(context), device=context.device)
     features.save(path)

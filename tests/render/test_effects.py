@@ -9,6 +9,7 @@ from render.effects import (
     DETERMINISTIC_EFFECTS,
     EFFECT_NAMES,
     IMAGE_EFFECT_ORDER,
+    IMAGE_EFFECT_PARAMETERS,
     RANDOM_EFFECTS,
     RENDER_EFFECTS,
     VisualEffects,
@@ -36,6 +37,32 @@ def test_all_effects_off_by_default_and_partitioned():
     assert not any(effects.enabled().values())
     assert set(EFFECT_NAMES) == set(IMAGE_EFFECT_ORDER) | set(RENDER_EFFECTS)
     assert len(EFFECT_NAMES) == 12
+
+
+def test_before_image_effects_keeps_what_the_renderer_draws_and_resets_the_rest():
+    fields = {f.name: f for f in dataclasses.fields(VisualEffects)}
+    assert set(IMAGE_EFFECT_PARAMETERS) <= set(fields)
+    # Every strength of an image effect is one of its parameters.
+    assert {n for n, f in fields.items()
+            if f.metadata.get("strength_of") in IMAGE_EFFECT_ORDER} <= set(IMAGE_EFFECT_PARAMETERS)
+    # The renderer reads none of them (it hands them to apply_image_effects whole).
+    from pathlib import Path
+
+    import render.renderer
+
+    source = Path(render.renderer.__file__).read_text()
+    assert not [n for n in IMAGE_EFFECT_PARAMETERS if f"effects.{n}" in source]
+    everything = VisualEffects(
+        **dict.fromkeys(EFFECT_NAMES, True), noise_read_sigma=6.0, jpeg_quality=20,
+        frame_rate_ratio=2.0, specular_roughness=0.2, shake_translation=0.01,
+    )  # fmt: skip
+    base = everything.before_image_effects()
+    assert not any(getattr(base, n) for n in IMAGE_EFFECT_ORDER)
+    assert all(getattr(base, n) for n in RENDER_EFFECTS)
+    assert (base.specular_roughness, base.shake_translation) == (0.2, 0.01)
+    defaults = VisualEffects()
+    assert all(getattr(base, n) == getattr(defaults, n) for n in IMAGE_EFFECT_PARAMETERS)
+    assert VisualEffects(sensor_noise=True, noise_read_sigma=6.0).before_image_effects() == defaults
 
 
 def test_from_dict_names_unknown_keys_and_the_allowed_ones():
