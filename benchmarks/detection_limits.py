@@ -306,13 +306,14 @@ def main(argv: list[str] | None = None) -> None:
         twin = reference if seed == args.first_seed else None
         twin_features = features(twin_dir)
         twin_digest = frames_digest(twin_dir)
+        covariates = label_design(twin_dir / "labels.csv")
         done(_row("none (twin)", seed, True, gap(twin_features), {}, twin))
         for i, effect in enumerate(effects):
             tag = f"{effect['name']}={effect['strength']}"
             folder = sealed(out / "sets" / f"e{i}-{seed}", seed, [effect])
             identical = frames_digest(folder) == twin_digest
             found = twin_features if identical else features(folder)
-            size = paired_effect_size(found, twin_features, label_design(twin_dir / "labels.csv"))
+            size = paired_effect_size(found, twin_features, covariates)
             size["name"] = feature_name(size["rung"], size["feature"])
             result = None
             if args.diagnose:
