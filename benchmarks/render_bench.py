@@ -9,10 +9,14 @@ first texture upload); each run then renders one clip of ``--frames`` frames thr
 figure is frames / wall time, median over ``--repeats`` runs. ``--effects`` turns on the
 cheap visual effects (all but shadows and motion blur, which multiply the rasterisation cost
 by ~2.3 and ``motion_blur_samples``, and frame_rate, which changes the frame count),
-``--shadows`` adds shadows.
+``--shadows`` adds shadows, ``--rolling-shutter`` and ``--motion-blur`` add those (8 and 4
+renders a frame). Each repeat also renders the same clip on the reference path (whole frames
+for every rolling-shutter band, a new mesh a frame: ``band_scissor`` and ``update_in_place``
+off), checks that the bytes are equal and reports the speed-up of the fast paths.
 
 Usage: ``python -m benchmarks.render_bench [--frames 200] [--repeats 3] [--size 112]
-[--supersample 1] [--effects] [--shadows]``. The last line is JSON.
+[--supersample 1] [--effects] [--shadows] [--rolling-shutter] [--motion-blur]``. The last line
+is JSON.
 """
 
 from __future__ import annotations
@@ -70,14 +74,17 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--supersample", type=int, default=1)
     parser.add_argument("--effects", action="store_true")
     parser.add_argument("--shadows", action="store_true")
+    parser.add_argument("--rolling-shutter", action="store_true")
+    parser.add_argument("--motion-blur", action="store_true")
     args = parser.parse_args(argv)
 
     switches = {}
     if args.effects:
         excluded = ("shadows", "motion_blur", "frame_rate")
         switches = {n: True for n in EFFECT_NAMES if n not in excluded}
-    if args.shadows:
-        switches["shadows"] = True
+    for name in ("shadows", "rolling_shutter", "motion_blur"):
+        if getattr(args, name):
+            switches[name] = True
     effects = VisualEffects(**switches)
     camera = CameraSpec.wind(args.size, args.size)
     pos, tri, uv = waving_cloth(args.frames)
@@ -85,20 +92,28 @@ def main(argv: list[str] | None = None) -> dict:
     texture = make_texture("random", rng)
     background = make_background(rng, camera.width, camera.height)
 
-    walls = []
+    walls: dict[bool, list[float]] = {True: [], False: []}
     with ClothRenderer(camera, LightSpec(), effects, supersample=args.supersample) as renderer:
         renderer.render_clip(pos[:2], tri, uv, texture, background, rng=rng)  # warm-up
         for repeat in range(args.repeats):
-            start = time.perf_counter()
-            renderer.render_clip(
-                pos, tri, uv, texture, background, rng=np.random.default_rng(repeat)
-            )
-            walls.append(time.perf_counter() - start)
-    fps_all = [args.frames / w for w in walls]
+            frames = {}
+            for fast in (True, False):  # side by side, so that both see the same machine
+                renderer.band_scissor = renderer.update_in_place = fast
+                start = time.perf_counter()
+                frames[fast] = renderer.render_clip(
+                    pos, tri, uv, texture, background, rng=np.random.default_rng(repeat)
+                )
+                walls[fast].append(time.perf_counter() - start)
+            if not np.array_equal(frames[True], frames[False]):
+                raise SystemExit("render_bench: the fast paths changed the frames")
+    fps_all = [args.frames / w for w in walls[True]]
+    reference_fps = statistics.median(args.frames / w for w in walls[False])
     result = {
         "render_fps": statistics.median(fps_all),
         "render_fps_all": fps_all,
         "ms_per_frame": 1e3 / statistics.median(fps_all),
+        "reference_fps": reference_fps,
+        "speedup": statistics.median(fps_all) / reference_fps,
         "frames": args.frames,
         "size": [camera.width, camera.height],
         "supersample": args.supersample,
@@ -110,7 +125,8 @@ def main(argv: list[str] | None = None) -> dict:
         f"{args.frames} frames at {camera.width}x{camera.height} (supersample "
         f"{args.supersample}, effects {sorted(switches) or 'none'}): "
         f"{result['render_fps']:.1f} frames/s median "
-        f"({', '.join(f'{f:.1f}' for f in fps_all)}), {result['ms_per_frame']:.2f} ms/frame"
+        f"({', '.join(f'{f:.1f}' for f in fps_all)}), {result['ms_per_frame']:.2f} ms/frame; "
+        f"reference path {reference_fps:.1f} frames/s, same bytes, {result['speedup']:.2f}x"
     )
     print(json.dumps(result))
     return result

@@ -3,8 +3,11 @@
 :class:`ClothRenderer` owns one ``pyrender.OffscreenRenderer`` and one pyrender ``Scene``
 (camera, key light, ambient) for its lifetime and renders clips into uint8 RGB frames of shape
 (K, H, W, 3). Per clip it uploads the texture once; per frame it computes area-weighted vertex
-normals and swaps in a new vertex buffer (cheap beside rasterisation and read-back, which take
-~7 ms of a 112 x 112 frame on two CPU cores, see ``benchmarks/render_bench.py``). The cloth is
+normals and writes them and the positions into the cloth's vertex buffer in place (a new mesh
+only when the material changes, as between render passes). Rasterisation and read-back take
+most of a 112 x 112 frame's ~5 ms on Mesa's llvmpipe, so a rolling shutter's row bands are
+each rasterised inside a scissor box around their own rows, which gives the same bytes for
+about half the time of a whole frame (``benchmarks/render_bench.py``). The cloth is
 two-sided: every triangle is drawn twice, once with the reversed winding and negated normals,
 and back faces are culled, so whichever side faces the camera is shaded with the normal facing
 the camera (pyrender's shader does not flip normals of back faces itself). Antialiasing:
@@ -65,6 +68,7 @@ def _load_triton_before_mesa() -> None:
 _load_triton_before_mesa()
 
 import pyrender  # noqa: E402
+from OpenGL import GL  # noqa: E402
 from pyrender.constants import GLTF  # noqa: E402
 
 from .passes import GREY_TEXEL, PASS_NAMES, srgb_to_linear, uv_ramp_texture  # noqa: E402
@@ -218,6 +222,13 @@ class ClothRenderer:
         self._renderer = pyrender.OffscreenRenderer(
             camera.width * supersample, camera.height * supersample
         )
+        self.band_scissor = True
+        """Rasterise each rolling-shutter band inside a scissor box around its rows (same
+        bytes as whole frames; ``False`` renders whole frames, the reference path)."""
+        self.update_in_place = True
+        """Write each frame's vertices into the cloth's vertex buffer instead of building a new
+        mesh (same bytes; ``False`` builds a new mesh a frame, the reference path)."""
+        self._scissor: slice | None = None
 
     # ----------------------------------------------------------------------------- lifecycle
 
@@ -364,12 +375,16 @@ class ClothRenderer:
         extra = {name: np.empty_like(frames) for name in PASS_NAMES} if passes else {}
         bg = background.astype(np.float32) if background is not None else None
         nodes: dict[str, pyrender.Node | None] = {"cloth": None}
+        # Not with shadows: the box would also crop the shadow map, rendered in the same call.
+        scissor = self.band_scissor and not effects.shadows
         capsule_nodes: list[tuple[pyrender.Node, tuple[float, float]]] = []
         try:
             for k in range(frame_count):
                 layers = None
                 for j, band_times in enumerate(times[k]):
                     accum = None
+                    rows = slice(*(round(height * (j + e) / len(times[k])) for e in (0, 1)))
+                    self._scissor = rows if len(times[k]) > 1 and scissor else None
                     for s, t in enumerate(band_times):
                         frame_pos = _interpolate(pos, t + lead)
                         self._set_cloth(nodes, frame_pos, geometry, material, bounds)
@@ -382,7 +397,7 @@ class ClothRenderer:
                             delta[:3, 3] = shake[k, j, s, 3:]
                             cam_pose = cam_pose @ delta
                         self._scene.set_pose(self._camera_node, cam_pose)
-                        rgba, _ = self._renderer.render(self._scene, flags=self._flags)
+                        rgba = self._render(self._flags)
                         band = [rgba]
                         if passes:
                             band += self._render_passes(nodes, frame_pos, geometry, bounds)
@@ -394,7 +409,6 @@ class ClothRenderer:
                     if layers is None:
                         layers = band
                     else:  # the rows of band j (output rows, cut after the supersampling)
-                        rows = slice(*(round(height * (j + e) / len(times[k])) for e in (0, 1)))
                         layers[rows] = band[rows]
                 rgba = layers[..., :4]
                 for p, name in enumerate(extra):
@@ -406,6 +420,7 @@ class ClothRenderer:
                 frames[k] = np.clip(np.rint(out), 0, 255).astype(np.uint8)
                 alphas[k] = np.clip(np.rint(rgba[..., 3]), 0, 255).astype(np.uint8)
         finally:
+            self._scissor = None
             if nodes["cloth"] is not None:
                 self._scene.remove_node(nodes["cloth"])
             for node, _ in capsule_nodes:
@@ -537,6 +552,31 @@ class ClothRenderer:
             tri_indices=tri,
         )
 
+    def _render(self, flags) -> np.ndarray:
+        """RGBA of the scene as it stands (uint8, (H, W, 4) at the supersampled size).
+
+        While a band's rows are set (``self._scissor``, output rows), only those rows are
+        rasterised, cleared and resolved; the other rows hold whatever an earlier render left
+        and must not be used. Inside the box the bytes are the whole frame's: the scissor test
+        drops fragments, it does not change how they are computed.
+        """
+        rows = self._scissor
+        if rows is None:
+            return self._renderer.render(self._scene, flags=flags)[0]
+        s = self.supersample
+        self._renderer._platform.make_current()  # scissor state belongs to this context
+        GL.glEnable(GL.GL_SCISSOR_TEST)
+        GL.glScissor(
+            0,
+            (self.camera.height - rows.stop) * s,  # GL counts rows from the bottom
+            self.camera.width * s,
+            (rows.stop - rows.start) * s,
+        )
+        try:
+            return self._renderer.render(self._scene, flags=flags)[0]
+        finally:
+            GL.glDisable(GL.GL_SCISSOR_TEST)
+
     def _set_cloth(self, nodes, frame_pos, geometry: _ClothGeometry, material, bounds) -> None:
         tri = geometry.tri_indices
         p0, p1, p2 = frame_pos[tri[:, 0]], frame_pos[tri[:, 1]], frame_pos[tri[:, 2]]
@@ -544,9 +584,25 @@ class ClothRenderer:
         normals = geometry.incidence @ face_normals
         length = np.linalg.norm(normals, axis=1, keepdims=True)
         normals = np.where(length > 1e-20, normals / np.maximum(length, 1e-20), [0.0, 0.0, 1.0])
+        positions = np.concatenate([frame_pos, frame_pos]).astype(np.float32)
+        normals = np.concatenate([normals, -normals]).astype(np.float32)
+        node = nodes["cloth"]
+        if node is not None and self.update_in_place:
+            primitive = node.mesh.primitives[0]
+            if primitive.material is material and primitive._vaid is not None:
+                # pyrender's vertex buffer interleaves position, normal and texcoord_0 per
+                # vertex (Primitive._add_to_context); the primitive's own arrays go stale.
+                data = np.ascontiguousarray(
+                    np.hstack([positions, normals, geometry.texcoord]), np.float32
+                )
+                self._renderer._platform.make_current()
+                GL.glBindBuffer(GL.GL_ARRAY_BUFFER, primitive._buffers[0])
+                GL.glBufferSubData(GL.GL_ARRAY_BUFFER, 0, data.nbytes, data)
+                GL.glBindBuffer(GL.GL_ARRAY_BUFFER, 0)
+                return
         primitive = pyrender.Primitive(
-            positions=np.concatenate([frame_pos, frame_pos]).astype(np.float32),
-            normals=np.concatenate([normals, -normals]).astype(np.float32),
+            positions=positions,
+            normals=normals,
             texcoord_0=geometry.texcoord,
             indices=geometry.indices,
             material=material,
@@ -568,13 +624,13 @@ class ClothRenderer:
         out = []
         for name in ("grey", "black"):
             self._set_cloth(nodes, frame_pos, geometry, self._plain[name], bounds)
-            out.append(self._renderer.render(self._scene, flags=self._flags)[0][..., :3])
+            out.append(self._render(self._flags)[..., :3])
         self._set_cloth(nodes, frame_pos, geometry, self._uv_ramp, bounds)
         skin = self._skin.baseColorFactor
         self._skin.baseColorFactor = np.array([0.0, 0.0, 0.0, 1.0])
         try:
             flat = pyrender.RenderFlags.RGBA | pyrender.RenderFlags.FLAT
-            uvm, _ = self._renderer.render(self._scene, flags=flat)
+            uvm = self._render(flat)
         finally:
             self._skin.baseColorFactor = skin
         return [*out, uvm[..., :3]]

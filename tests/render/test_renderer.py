@@ -195,6 +195,76 @@ def test_rolling_shutter_shows_each_band_of_rows_at_its_readout_time(cloth, fron
         r.render_clip(clip[:2], tri, uv, texture, _background(), rng=_rng(), lead=1, trail=1)
 
 
+FAST_PATH_CASES = {
+    "plain": ({}, 1, False),
+    "rolling shutter": ({"rolling_shutter": True}, 1, False),
+    "rolling shutter, blur, shake, supersampled": (
+        {
+            "rolling_shutter": True,
+            "motion_blur": True,
+            "motion_blur_samples": 2,
+            "camera_shake": True,
+        },
+        2,
+        False,
+    ),
+    "rolling shutter with shadows": ({"rolling_shutter": True, "shadows": True}, 1, False),
+    "rolling shutter with passes": ({"rolling_shutter": True, "lighting_variation": True}, 1, True),
+}
+
+
+@pytest.mark.parametrize("case", FAST_PATH_CASES)
+def test_fast_paths_give_the_reference_bytes(case, cloth, front_camera):
+    """Band scissor and in-place vertex upload against whole frames and a new mesh a frame."""
+    switches, supersample, passes = FAST_PATH_CASES[case]
+    clip, tri, uv, capsules = _moving_clip(cloth)
+    texture = make_texture("grid", _rng(), size=64)
+    outputs = []
+    for fast in (False, True):
+        with ClothRenderer(
+            front_camera, effects=VisualEffects(**switches), supersample=supersample
+        ) as r:
+            r.band_scissor = r.update_in_place = fast
+            outputs.append(
+                r.render_clip(
+                    clip,
+                    tri,
+                    uv,
+                    texture,
+                    _background(),
+                    capsules=capsules,
+                    rng=_rng(3),
+                    lead=1,
+                    passes=passes,
+                )
+            )
+    reference, fast = outputs
+    if passes:
+        np.testing.assert_array_equal(fast[0], reference[0])
+        np.testing.assert_array_equal(fast[1], reference[1])
+        for name, image in reference[2].items():
+            np.testing.assert_array_equal(fast[2][name], image, err_msg=name)
+    else:
+        np.testing.assert_array_equal(fast, reference)
+
+
+def test_interleaved_renderers_keep_their_own_buffers_and_scissor(cloth, front_camera):
+    """Two contexts in one process: each in-place upload and scissor box lands in its own."""
+    clip, tri, uv, _ = _moving_clip(cloth)
+    texture = make_texture("grid", _rng(), size=64)
+    shutter = VisualEffects(rolling_shutter=True)
+    with ClothRenderer(front_camera, effects=shutter) as a, ClothRenderer(front_camera) as b:
+        alone = [r.render_clip(clip, tri, uv, texture, _background(), rng=_rng()) for r in (a, b)]
+        crumpled_clip = clip[::-1].copy()
+        for _ in range(2):  # the other renderer's clip in between, twice
+            mixed_a = a.render_clip(clip, tri, uv, texture, _background(), rng=_rng())
+            b.render_clip(crumpled_clip, tri, uv, texture, _background(), rng=_rng())
+            mixed_b = b.render_clip(clip, tri, uv, texture, _background(), rng=_rng())
+            a.render_clip(crumpled_clip, tri, uv, texture, _background(), rng=_rng())
+            np.testing.assert_array_equal(mixed_a, alone[0])
+            np.testing.assert_array_equal(mixed_b, alone[1])
+
+
 def test_full_pipeline_deterministic_per_seed(cloth, front_camera):
     clip, tri, uv, capsules = _moving_clip(cloth)
     texture = make_texture("random", _rng(1), size=64)
