@@ -6,13 +6,14 @@ resolution (112 x 112) or ``--size``, a random procedural texture and background
 :class:`render.renderer.ClothRenderer` is created once and warmed up (shader compilation,
 first texture upload); each run then renders one clip of ``--frames`` frames through
 ``render_clip`` (normals, upload, rasterisation, read-back, compositing, effects), and the
-figure is frames / wall time, median over ``--repeats`` runs. ``--effects`` turns on the
-cheap visual effects (all but shadows and motion blur, which multiply the rasterisation cost
-by ~2.3 and ``motion_blur_samples``, and frame_rate, which changes the frame count),
-``--shadows`` adds shadows, ``--rolling-shutter`` and ``--motion-blur`` add those (8 and 4
-renders a frame). Each repeat also renders the same clip on the reference path (whole frames
-for every rolling-shutter band, a new mesh a frame: ``band_scissor`` and ``update_in_place``
-off), checks that the bytes are equal and reports the speed-up of the fast paths.
+figure is frames / wall time, median over ``--repeats`` runs. ``--effects`` turns on every
+visual effect but shadows, motion blur (which multiply the rasterisation cost by ~2.3 and
+``motion_blur_samples``) and frame_rate (which changes the frame count); the rolling shutter
+is among them. ``--shadows``, ``--rolling-shutter`` (8 band renders a frame) and
+``--motion-blur`` (4 sub-frame renders) add one effect each. Each repeat also renders the
+same clip on the reference path (whole frames for every rolling-shutter band, a new mesh a
+frame: ``band_scissor`` and ``update_in_place`` off), checks that the bytes are equal and
+reports the speed-up of the fast paths.
 
 Usage: ``python -m benchmarks.render_bench [--frames 200] [--repeats 3] [--size 112]
 [--supersample 1] [--effects] [--shadows] [--rolling-shutter] [--motion-blur]``. The last line
