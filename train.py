@@ -39,6 +39,7 @@ from simulator.errors import (
     check_bool,
     check_choice,
     check_int,
+    check_name,
     check_node,
     config_errors,
     report_user_errors,
@@ -247,9 +248,11 @@ def _training_summary(last: Path) -> dict:
 
     Read from the checkpoint so that resumed and evaluation-only runs report the whole training.
     """
+    from models.checkpoint import read_checkpoint
+
     summary: dict = {"device": _device_name()}
     if last.is_file():
-        state = torch.load(last, map_location="cpu", weights_only=False)
+        state = read_checkpoint(last, "ckpt_path")
         summary["epochs"] = int(state.get("epoch", -1)) + 1
         summary["train_minutes"] = float(state.get("train_seconds", 0.0)) / 60
         summary["best_val_acc"] = float(state.get("best_val_acc", 0.0))
@@ -266,10 +269,15 @@ def train(cfg: DictConfig) -> dict:
     )
 
     _check_fields(cfg)
+    check_name(cfg.run_name, "run_name")  # the run folder's name, never a path
     output_dir = Path(cfg.paths.output_dir)
     identity = dataset_identity(cfg) if cfg.train or cfg.test else []
     record = bool(identity) and check_dataset_identity(output_dir, identity)
     resume = _resume_path(cfg, output_dir) if cfg.train else None
+    if resume is not None:  # a file of tensors only: refused in one line before any work
+        from models.checkpoint import read_checkpoint
+
+        read_checkpoint(resume, "ckpt_path")
     init_from = cfg.get("init_from")
     if init_from:  # the whole net comes from that checkpoint, not from its stages' CNNs
         with open_dict(cfg):
@@ -299,7 +307,7 @@ def train(cfg: DictConfig) -> dict:
     for logger in loggers:
         logger.log_hyperparams(config)
     if cfg.train:
-        trainer.fit(model, datamodule=datamodule, ckpt_path=resume)
+        trainer.fit(model, datamodule=datamodule, ckpt_path=resume, weights_only=True)
         _log_early_stop(trainer)
     metrics = _training_summary(output_dir / "checkpoints" / "last.ckpt")
     if cfg.test and trainer.is_global_zero:
@@ -316,6 +324,7 @@ def train(cfg: DictConfig) -> dict:
     return metrics
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="configs", config_name="train")
 @report_user_errors
 def main(cfg: DictConfig) -> float | None:

@@ -72,11 +72,13 @@ from models.material_classifier import MaterialClassifierModule, load_classifier
 from models.metrics import ClassGrid
 from models.scores import material_scores
 from simulator.cloth.material import WANG54, MaterialSet
+from simulator.cloth.rollout import check_recording_memory
 from simulator.errors import (
     InputError,
     check_device,
     check_float,
     check_int,
+    check_output_dir,
     config_errors,
     report_user_errors,
 )
@@ -175,13 +177,7 @@ class CloneOutputs:
 
 def load_checked_classifier(trained: TrainedRun) -> MaterialClassifierModule:
     """The run's classifier, refused (naming ``run``) unless it predicts its data's classes."""
-    try:
-        module = load_classifier(trained.checkpoint, map_location="cpu")
-    except Exception as err:  # a file torch or the net config cannot rebuild: the user's input
-        raise InputError(
-            f"run: cannot load checkpoint {trained.checkpoint} ({' '.join(str(err).split())}); "
-            "give a checkpoint written by train.py"
-        ) from None
+    module = load_classifier(trained.checkpoint, map_location="cpu", field="run")
     try:
         grid = ClassGrid.from_json(trained.spec.material_set.to_json())
         check_class_count(
@@ -393,8 +389,7 @@ def _checked(cfg: DictConfig) -> dict:
     if cfg.video_fps is not None:
         video_fps = check_float(cfg.video_fps, "video_fps", 0, low_open=True)
     max_clips = None if cfg.max_clips is None else check_int(cfg.max_clips, "max_clips", 1)
-    if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
-        raise InputError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
+    check_output_dir(cfg.out_dir, "out_dir")
     # One simulation per class, all in one rollout; the classes come from the prediction.
     preset = SizePreset(
         "clone", sims_per_class=1, clips_per_sim=1, val_sims_per_class=0, test_sims_per_class=0,
@@ -404,6 +399,7 @@ def _checked(cfg: DictConfig) -> dict:
     with open_dict(spec_cfg):
         spec_cfg.classes = None
     spec = spec_from_config(spec_cfg, preset=preset)
+    check_recording_memory(record_time, fps, 3, spec.scenario.mesh().vert_count)  # 3 classes
     if spec.camera.width != spec.camera.height:
         raise InputError(
             "render.camera.width and render.camera.height must be equal (square tiles beside "
@@ -645,6 +641,7 @@ def clone_sheet(
     return sheet
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../configs", config_name="clone")
 @report_user_errors
 def main(cfg: DictConfig) -> None:

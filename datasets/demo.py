@@ -32,7 +32,15 @@ import numpy as np
 from omegaconf import DictConfig
 
 from simulator.cloth.material import class_summary
-from simulator.errors import InputError, check_float, check_int, config_errors, report_user_errors
+from simulator.cloth.rollout import check_recording_memory
+from simulator.errors import (
+    InputError,
+    check_float,
+    check_int,
+    check_output_dir,
+    config_errors,
+    report_user_errors,
+)
 from simulator.threads import check_threads, use_process_threads
 
 from .generate import spec_from_config
@@ -99,12 +107,12 @@ def _checked(cfg: DictConfig) -> tuple[DatasetSpec, WorkUnit, dict]:
         frames_per_clip=shown, fps=fps,
     )  # fmt: skip
     spec = spec_from_config(cfg, preset=preset)
+    check_recording_memory(record_time, fps, len(spec.classes), spec.scenario.mesh().vert_count)
     speeds = getattr(spec.scenario, "wind_speeds", None)
     wind_level = check_int(cfg.wind_level, "wind_level", 0, len(speeds) - 1 if speeds else None)
     (unit,) = plan_units(spec)
     sims = tuple(dataclasses.replace(sim, wind_level=wind_level) for sim in unit.sims)
-    if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
-        raise InputError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
+    check_output_dir(cfg.out_dir, "out_dir")
     fields = {"threads": threads, "sheet_frames": sheet_frames, "out_dir": Path(cfg.out_dir)}
     return spec, dataclasses.replace(unit, sims=sims), fields
 
@@ -208,6 +216,7 @@ def _progress(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
         bar.close()
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../configs", config_name="demo")
 @report_user_errors
 def main(cfg: DictConfig) -> None:

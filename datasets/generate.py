@@ -28,7 +28,9 @@ from simulator.errors import (
     check_device,
     check_float,
     check_int,
+    check_name,
     check_node,
+    check_output_dir,
     config_errors,
     report_user_errors,
 )
@@ -152,13 +154,18 @@ def run(cfg: DictConfig):
     """Generate (or resume) the configured dataset; returns the manifest or ``None``."""
     spec = spec_from_config(cfg)
     fields = _run_fields(cfg)
+    check_name(spec.preset.name, "preset.name")  # a part of the default out_dir
     out_dir = _path_or_none(cfg.out_dir, "out_dir")
     if out_dir is None:
         raise InputError("out_dir must be a folder path, got null")
+    check_output_dir(out_dir, "out_dir")
+    if fields["mesh_cache"] is not None:
+        check_output_dir(fields["mesh_cache"], "mesh_cache")
     use_process_threads(fields["threads_per_job"], name="threads_per_job")
     return generate_dataset(spec, out_dir, **fields)
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../configs", config_name="generate")
 @report_user_errors
 def main(cfg: DictConfig) -> None:

@@ -15,7 +15,6 @@ import contextlib
 import hashlib
 import json
 import logging
-import multiprocessing
 import os
 import shutil
 import threading
@@ -30,6 +29,7 @@ from render.textures import make_texture
 from simulator.cloth.material import WANG54, ClothMaterial, load_wang_material
 from simulator.cloth.rollout import simulate, with_capsules
 from simulator.errors import InputError
+from simulator.processes import run_in_workers, start_manager
 from simulator.sequence import MeshSequence
 from simulator.threads import torch_threads
 
@@ -505,11 +505,12 @@ def _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads, done, progr
             report = bar if progress else None
             results = (run_unit(spec, u, out_dir, cache_dir, threads, report) for u in pending)
         else:
-            from joblib import Parallel, delayed
+            from joblib import delayed
 
             report = None
             if progress:  # workers report through a queue that a thread here reads
-                manager = stack.enter_context(multiprocessing.Manager())
+                manager = start_manager()
+                stack.callback(manager.shutdown)
                 queue = manager.Queue()
                 reader = threading.Thread(target=_queue_reports, args=(queue, bar), daemon=True)
                 reader.start()
@@ -517,9 +518,9 @@ def _run_pending(spec, pending, out_dir, cache_dir, n_jobs, threads, done, progr
                 stack.callback(queue.put, None)
                 report = _QueueReport(queue)
             os.environ.setdefault("LP_NUM_THREADS", "1")  # llvmpipe: one raster thread per job
-            parallel = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
-            results = parallel(
-                delayed(run_unit)(spec, u, out_dir, cache_dir, threads, report) for u in pending
+            results = run_in_workers(
+                n_jobs,
+                (delayed(run_unit)(spec, u, out_dir, cache_dir, threads, report) for u in pending),
             )
         for result in results:
             index = result["index"]

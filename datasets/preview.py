@@ -19,9 +19,17 @@ import cv2
 import numpy as np
 
 from simulator.cloth.material import WANG54, MaterialSet
+from simulator.errors import (
+    InputError,
+    check_choice,
+    check_int,
+    check_output_dir,
+    report_user_errors,
+)
 from simulator.sequence import atomic_write_bytes
 
 from .clip_dataset import ClothClipDataset
+from .spec import SPLITS
 
 __all__ = [
     "class_lines",
@@ -186,6 +194,7 @@ def write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
         atomic_write_bytes(path, tmp.read_bytes())
 
 
+@report_user_errors
 def main(argv: list[str] | None = None) -> list[Path]:
     """Write the sheet and the video of each dataset; returns the written paths."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -195,10 +204,22 @@ def main(argv: list[str] | None = None) -> list[Path]:
     parser.add_argument("--clips-per-class", type=int, default=3)
     parser.add_argument("--frames-per-clip", type=int, default=4)
     args = parser.parse_args(argv)
+    check_int(args.clips_per_class, "--clips-per-class", 1)
+    check_int(args.frames_per_clip, "--frames-per-clip", 1)
+    if args.split is not None:
+        check_choice(args.split, "--split", SPLITS)
+    check_output_dir(args.out, "--out")
+    datasets = []
+    for root in args.datasets:  # every dataset read before anything is written
+        if not root.is_dir():
+            raise InputError(f"datasets: {root} is not a folder (give generated dataset folders)")
+        try:
+            datasets.append(ClothClipDataset(root, args.split, verify=True))
+        except (FileNotFoundError, ValueError) as error:
+            raise InputError(f"datasets: {root}: {error}") from None
     args.out.mkdir(parents=True, exist_ok=True)
     written = []
-    for root in args.datasets:
-        data = ClothClipDataset(root, args.split, verify=True)
+    for root, data in zip(args.datasets, datasets, strict=True):
         name = root.resolve().name
         sheet = contact_sheet(
             data, clips_per_class=args.clips_per_class, frames_per_clip=args.frames_per_clip

@@ -50,6 +50,7 @@ __all__ = [
     "RealVideoDataset",
     "SkippedVideo",
     "clip_starts",
+    "footage_files",
     "read_labels",
 ]
 
@@ -109,6 +110,18 @@ class _Video:
         return self.values["density"]
 
 
+POSITIVE_COLUMNS = ("stiffness", "density")
+"""Measured magnitudes that are > 0 by their nature (the thesis's Table 7.3 columns)."""
+
+
+def _measured(value: str, column: str, line: int, path: Path) -> float:
+    """A measured column's value: a finite number, and > 0 for :data:`POSITIVE_COLUMNS`."""
+    out = _number(value, column, line, path)
+    if column in POSITIVE_COLUMNS and not out > 0:
+        raise InputError(f"{path} line {line}: column {column!r} must be > 0, got {value!r}")
+    return out
+
+
 def _number(value: str, column: str, line: int, path: Path) -> float:
     try:
         out = float(value)
@@ -158,16 +171,30 @@ def read_labels(root: str | Path, columns: Sequence[str] = DEFAULT_COLUMNS) -> l
             f"{path} not found (columns: video, {', '.join(columns)}[, wind, fps, fabric])"
         )
     rows = []
-    with open(path, newline="") as handle:
-        reader = csv.DictReader(handle)
-        header = [c.strip() for c in (reader.fieldnames or [])]
-        missing = [c for c in ("video", *columns) if c not in header]
-        if missing:
-            raise InputError(f"{path} lacks column(s) {missing}; it has {header}")
-        for row in reader:
-            fields = {k.strip(): (v or "").strip() for k, v in row.items() if k}
-            if any(fields.values()):  # a blank line is not a video
-                rows.append(LabelRow(reader.line_num, fields))
+    try:  # utf-8-sig: a spreadsheet's byte-order mark is not part of the first column's name
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            reader = csv.DictReader(handle)
+            header = [c.strip() for c in (reader.fieldnames or [])]
+            missing = [c for c in ("video", *columns) if c not in header]
+            if missing:
+                raise InputError(f"{path} lacks column(s) {missing}; it has {header}")
+            for row in reader:
+                extra = row.get(None)  # type: ignore[call-overload]
+                if extra and any(v.strip() for v in extra):
+                    raise InputError(
+                        f"{path} line {reader.line_num}: {len(header) + len(extra)} fields but "
+                        f"the header names {len(header)}"
+                    )
+                fields = {k.strip(): (v or "").strip() for k, v in row.items() if k}
+                if any(fields.values()):  # a blank line is not a video
+                    rows.append(LabelRow(reader.line_num, fields))
+    except UnicodeDecodeError as error:
+        bad = error.object[error.start : error.start + 1]
+        raise InputError(
+            f"{path} is not UTF-8 text (byte {error.start} is {bad!r}); save it as UTF-8 CSV"
+        ) from None
+    except csv.Error as error:
+        raise InputError(f"{path} is not a readable CSV file ({error})") from None
     if not rows:
         raise InputError(f"{path} lists no videos")
     lines: dict[str, list[int]] = {}
@@ -201,6 +228,13 @@ def _find(folder: Path, name: str) -> Path | None:
 def _resolve(root: Path, row: LabelRow) -> Path:
     """The file or frame folder of a row, beside ``labels.csv`` or in ``videos/``."""
     name = row.fields["video"]
+    if "\x00" in name:
+        raise InputError(f"{root / 'labels.csv'} line {row.line}: video {name!r} holds a NUL byte")
+    if Path(name).is_absolute() or ".." in Path(name).parts:
+        raise InputError(
+            f"{root / 'labels.csv'} line {row.line}: video {name!r} must be a name inside {root} "
+            "(no absolute path, no '..')"
+        )
     places = (root, root / VIDEO_SUBFOLDER)
     found = [p for p in (_find(folder, name) for folder in places) if p is not None]
     if not found:
@@ -213,7 +247,25 @@ def _resolve(root: Path, row: LabelRow) -> Path:
             f"video {name!r} listed in {root / 'labels.csv'} (line {row.line}) is both "
             f"{found[0]} and {found[1]}; keep one"
         )
+    if not found[0].resolve().is_relative_to(root.resolve()):
+        raise InputError(
+            f"{root / 'labels.csv'} line {row.line}: video {name!r} is a link to "
+            f"{found[0].resolve()}, outside {root}; the footage must lie inside its folder"
+        )
     return found[0]
+
+
+def footage_files(root: str | Path, columns: Sequence[str] = DEFAULT_COLUMNS) -> list[Path]:
+    """Every file an evaluation of a footage folder reads, all inside ``root``.
+
+    ``labels.csv``, then each listed video (a frame folder's image files) in its order.
+    """
+    root = Path(root)
+    files = [root / "labels.csv"]
+    for row in read_labels(root, columns):
+        path = _resolve(root, row)
+        files.extend(_frame_files(path) if path.is_dir() else [path])
+    return files
 
 
 def _groups(rows: list[LabelRow], header: list[str], group: str | None, path: Path):
@@ -352,7 +404,7 @@ class RealVideoDataset(Dataset):
         return _Video(
             name=row.fields["video"],
             path=path,
-            values={c: _number(row.fields[c], c, row.line, labels) for c in self.columns},
+            values={c: _measured(row.fields[c], c, row.line, labels) for c in self.columns},
             group=group,
             wind=row.fields.get("wind", ""),
             fps=float(fps),

@@ -61,12 +61,19 @@ from torch.utils.data import DataLoader, Dataset
 
 from datasets.clip_dataset import ClothClipDataset
 from datasets.manifest import SPLIT_PROTOCOLS, Manifest, legacy_class_grid
-from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset
+from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset, footage_files
 from datasets.spec import SPLITS
-from simulator.errors import InputError, check_choice, check_float, check_int, report_user_errors
+from simulator.errors import (
+    InputError,
+    check_choice,
+    check_float,
+    check_int,
+    check_output_dir,
+    report_user_errors,
+)
 from simulator.sequence import atomic_write_bytes
 
-from .correlation import correlate
+from .correlation import MIN_SAMPLES, correlate
 from .material_classifier import MaterialClassifierModule, load_classifier
 from .metrics import (
     BREAKDOWNS,
@@ -375,6 +382,7 @@ def evaluate_real(
         target_fps=target_fps, size=size,
     )  # fmt: skip
     columns = dataset.columns
+    _check_correlatable(dataset, Path(real_dir))
     logits, meta = predict(
         module, dataset, batch_size=batch_size, desc="real clips", class_count=grid.num_classes
     )
@@ -472,6 +480,36 @@ def evaluate_real(
     return result
 
 
+def _check_correlatable(dataset: RealVideoDataset, real_dir: Path) -> None:
+    """Refuse footage on which no correlation can be computed, saying why in one line.
+
+    A correlation needs at least :data:`~models.correlation.MIN_SAMPLES` videos with clips and
+    a measured column whose values differ; a column that is constant is reported as n/a with
+    a warning when another column can be correlated.
+    """
+    skipped = {s.name for s in dataset.skipped}
+    used = [v for v in dataset.videos if v.name not in skipped]
+    if len(used) < MIN_SAMPLES:
+        raise InputError(
+            f"real_dir: {len(used)} of the {len(dataset.videos)} videos listed in "
+            f"{real_dir / 'labels.csv'} are long enough for a clip; a correlation needs at "
+            f"least {MIN_SAMPLES}"
+        )
+    constant = {c: used[0].values[c] for c in dataset.columns
+                if len({v.values[c] for v in used}) == 1}  # fmt: skip
+    if len(constant) == len(dataset.columns):
+        raise InputError(
+            f"real_dir: every measured column of {real_dir / 'labels.csv'} has one value for "
+            f"all {len(used)} videos ({', '.join(f'{c} = {v:g}' for c, v in constant.items())}); "
+            "a correlation needs measured values that differ"
+        )
+    for column, value in constant.items():
+        log.warning(
+            "%s: column %r is %g for every video, so its correlations are n/a",
+            real_dir / "labels.csv", column, value,
+        )  # fmt: skip
+
+
 def _real_markdown(
     result: dict, dataset: RealVideoDataset, inputs: dict[str, list], grid: ClassGrid
 ) -> str:
@@ -549,13 +587,14 @@ def _sha256(path: Path) -> str | None:
     return digest.hexdigest()
 
 
-def _listing_sha256(root: Path) -> str:
-    """sha256 of every file's relative path, size and modification time under ``root``."""
+def _footage_sha256(root: Path, columns: Sequence[str]) -> str:
+    """sha256 over the bytes and paths of every file the evaluation reads.
+
+    ``labels.csv`` and each listed video (:func:`~datasets.real_video.footage_files`).
+    """
     digest = hashlib.sha256()
-    for path in sorted(root.rglob("*")):
-        if path.is_file():
-            stat = path.stat()
-            digest.update(f"{path.relative_to(root)}:{stat.st_size}:{stat.st_mtime_ns}\n".encode())
+    for path in footage_files(root, columns):
+        digest.update(f"{path.relative_to(root)}:{_sha256(path)}\n".encode())
     return digest.hexdigest()
 
 
@@ -605,7 +644,7 @@ def evaluation_folder(
         inputs["real"] = {
             "real_dir": str(real_dir.resolve()),
             "labels_sha256": _sha256(real_dir / "labels.csv"),
-            "files_sha256": _listing_sha256(real_dir),
+            "files_sha256": _footage_sha256(real_dir, settings["columns"]),
             **{k: settings[k] for k in keys},
         }
         parts.append(real_dir.resolve().name)
@@ -625,17 +664,19 @@ def run(cfg: DictConfig) -> dict:
             "evaluate needs data_dir (a generated dataset) and/or real_dir (a folder of real "
             "videos with labels.csv)"
         )
+    settings = _settings(cfg)
+    if not isinstance(cfg.ckpt_path, str) or not cfg.ckpt_path.strip():
+        raise InputError(f"ckpt_path must be a checkpoint file, got {cfg.ckpt_path!r}")
+    ckpt = Path(cfg.ckpt_path)
+    module = load_classifier(ckpt, field="ckpt_path")  # first: a bad checkpoint is named
     for key in ("data_dir", "real_dir"):
         if cfg[key] is not None and not Path(cfg[key]).is_dir():
             raise FileNotFoundError(f"{key} {cfg[key]} does not exist")
-    settings = _settings(cfg)
-    ckpt = Path(cfg.ckpt_path)
-    module = load_classifier(ckpt)
     data_dir = None if cfg.data_dir is None else Path(cfg.data_dir)
     real_dir = None if cfg.real_dir is None else Path(cfg.real_dir)
     grid = module_grid(module) if data_dir is None else dataset_grid(data_dir)
     check_class_count(module, checkpoint=ckpt, dataset=data_dir or real_dir, grid=grid)
-    parent = Path(cfg.out_dir) if cfg.out_dir else _default_out_dir(ckpt)
+    parent = check_output_dir(cfg.out_dir or _default_out_dir(ckpt), "out_dir")
     folder, inputs = evaluation_folder(parent, ckpt, data_dir, real_dir, settings)
     if (folder / FINISHED).is_file() and not settings["overwrite"]:
         raise InputError(
@@ -669,6 +710,7 @@ def run(cfg: DictConfig) -> dict:
     return results
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../configs", config_name="evaluate")
 @report_user_errors
 def main(cfg: DictConfig) -> None:

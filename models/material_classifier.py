@@ -26,6 +26,14 @@ import torch
 from hydra.utils import instantiate
 from torch import nn
 
+from simulator.errors import InputError
+
+from .checkpoint import (
+    CHECKPOINT_HELP,
+    checked_net_config,
+    checkpoint_state_dict,
+    read_checkpoint,
+)
 from .metrics import ClassGrid, classification_metrics
 
 __all__ = [
@@ -247,28 +255,33 @@ def _classifier_rows(state_dict: dict) -> int | None:
 
 
 def load_classifier(
-    checkpoint: str | Path, map_location: str | torch.device = "cpu"
+    checkpoint: str | Path, map_location: str | torch.device = "cpu", *, field: str = "checkpoint"
 ) -> MaterialClassifierModule:
     """Rebuild a trained module from its checkpoint alone (net from the stored ``net_config``).
 
-    Checkpoints written before the labels travelled with the data lack ``num_classes`` in
-    ``net_config`` and the ``class_grid`` hyper-parameter: the class count is read from the
-    stored classifier layer, and the grid is that of every dataset of that time, the 54
-    classes of ``wang54`` (:func:`datasets.manifest.legacy_class_grid`).
+    The file is read as data (:func:`models.checkpoint.read_checkpoint`) and the net is built
+    only from the project's components (:data:`models.checkpoint.NET_TARGETS`). Checkpoints
+    written before the labels travelled with the data lack ``num_classes`` in ``net_config``
+    and the ``class_grid`` hyper-parameter: the class count is read from the stored classifier
+    layer, and the grid is that of every dataset of that time, the 54 classes of ``wang54``
+    (:func:`datasets.manifest.legacy_class_grid`).
+
+    Raises:
+        InputError: one line naming ``field`` and the file when it is not a checkpoint of
+            one of our nets.
     """
     path = Path(checkpoint)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} does not exist")
-    # Our own checkpoints: hyper-parameters are plain dicts next to the tensors.
-    raw = torch.load(path, map_location=map_location, weights_only=False)
-    hparams = raw.get("hyper_parameters", {})
-    net_config = copy.deepcopy(hparams.get("net_config"))
-    if not net_config:
-        raise ValueError(f"checkpoint {path} has no net_config; was it written by train.py?")
+    raw = read_checkpoint(path, field, map_location=map_location)
+    state = checkpoint_state_dict(raw, path, field)
+    hparams = raw["hyper_parameters"]
+    net_config = copy.deepcopy(checked_net_config(raw, path, field))
     if "num_classes" not in net_config:  # written before the labels travelled with the data
-        rows = _classifier_rows(raw.get("state_dict", {}))
+        rows = _classifier_rows(state)
         if rows is None:
-            raise ValueError(f"checkpoint {path} says neither num_classes nor a classifier layer")
+            raise InputError(
+                f"{field}: {path} says neither num_classes nor a classifier layer; give "
+                f"{CHECKPOINT_HELP}"
+            )
         net_config["num_classes"] = rows
     stored_config = {**hparams["net_config"], "num_classes": net_config["num_classes"]}
     for key in ENCODER_CHECKPOINT_KEYS:
@@ -279,16 +292,23 @@ def load_classifier(
         from datasets.manifest import legacy_class_grid
 
         class_grid = legacy_class_grid()
-    net = instantiate(net_config)
-    module = MaterialClassifierModule(
-        net,
-        label_smoothing=float(hparams.get("label_smoothing", 0.0)),
-        net_config=stored_config,
-        method=str(hparams.get("method", "")),
-        class_grid=class_grid,
-    )
-    module.load_state_dict(raw["state_dict"])
-    module.best_val_acc = float(raw.get("best_val_acc", 0.0))
+    try:
+        net = instantiate(net_config)
+        module = MaterialClassifierModule(
+            net,
+            label_smoothing=float(hparams.get("label_smoothing", 0.0)),
+            net_config=stored_config,
+            method=str(hparams.get("method", "")),
+            class_grid=class_grid,
+        )
+        module.load_state_dict(state)
+        module.best_val_acc = float(raw.get("best_val_acc", 0.0))
+    except Exception as error:  # settings or weights that do not build our net
+        cause = error.__cause__ if type(error).__module__.startswith("hydra.") else error
+        raise InputError(
+            f"{field}: {path} does not rebuild its net ({' '.join(str(cause).split())[:300]}); "
+            f"give {CHECKPOINT_HELP}"
+        ) from None
     return module.eval()
 
 
@@ -300,15 +320,12 @@ def init_weights_from(module: MaterialClassifierModule, checkpoint: str | Path) 
     The nets must match exactly.
     """
     path = Path(checkpoint)
-    if not path.is_file():
-        raise FileNotFoundError(f"init_from {path} does not exist")
-    raw = torch.load(path, map_location="cpu", weights_only=False)
-    if "state_dict" not in raw:
-        raise ValueError(f"init_from {path} has no state_dict; was it written by train.py?")
+    state = checkpoint_state_dict(read_checkpoint(path, "init_from"), path, "init_from")
     try:
-        module.load_state_dict(raw["state_dict"])
+        module.load_state_dict(state)
     except RuntimeError as error:
-        raise ValueError(
+        raise InputError(
             f"init_from {path} does not fit this model (method {module.hparams.method!r}): "
             f"{' '.join(str(error).split())[:400]}"
-        ) from error
+        ) from None
+

@@ -8,14 +8,23 @@ figures) and prints the verdict. See :mod:`sim2real.diagnosis` for the method.
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 
 import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from simulator.errors import check_bool, check_choice, check_device, check_float, check_int
+from simulator.errors import (
+    InputError,
+    check_bool,
+    check_choice,
+    check_device,
+    check_float,
+    check_int,
+    check_name,
+    check_output_dir,
+    report_user_errors,
+)
 
 from .pipeline import run_diagnosis
 from .report import verdict
@@ -26,7 +35,10 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Run the configured diagnosis; returns the result dict."""
     name = cfg.name or f"{Path(str(cfg.real_dir)).name}-{Path(str(cfg.run)).name}"
-    out_dir = cfg.out_dir or f"outputs/sim2real/{name}"
+    name = check_name(name, "name")  # the report folder's name: never a path
+    out_dir = check_output_dir(cfg.out_dir or f"outputs/sim2real/{name}", "out_dir")
+    for field in ("cache_dir", "mesh_cache"):
+        check_output_dir(cfg[field], field)
     candidates = cfg.candidates
     if not isinstance(candidates, str):
         candidates = [str(c) for c in candidates]
@@ -53,14 +65,15 @@ def run(cfg: DictConfig) -> dict:
     )
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../configs", config_name="diagnose")
+@report_user_errors
 def main(cfg: DictConfig) -> None:
     """Hydra wrapper around :func:`run`: bad input ends with one line naming the field."""
     try:
         result = run(cfg)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+    except ValueError as err:  # the diagnosis's own checks raise ValueErrors naming the field
+        raise InputError(" ".join(str(err).split())) from err
     out = cfg.out_dir or f"outputs/sim2real/{result['name']}"
     print(verdict(result))
     print(f"report: {Path(out) / 'report.html'}")

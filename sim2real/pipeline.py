@@ -173,7 +173,7 @@ def load_run(run: str | Path, data_dir: str | Path | None = None) -> tuple[Datas
 def _load_net(checkpoint: str, device: str):
     from models.material_classifier import load_classifier
 
-    module = load_classifier(checkpoint, map_location="cpu")
+    module = load_classifier(checkpoint, map_location="cpu", field="run")
     classes = module.net.classifier.out_features if hasattr(module.net, "classifier") else None
     if classes is not None and classes != CLASS_COUNT:
         raise ValueError(
@@ -238,10 +238,11 @@ def _run_jobs(jobs: list[SetJob], context: SetContext, n_jobs: int, progress: bo
         if n_jobs == 1 or len(todo) <= 1:
             results = (build_set(j, context) for j in todo)
         else:
-            from joblib import Parallel, delayed
+            from joblib import delayed
 
-            parallel = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
-            results = parallel(delayed(build_set)(j, context) for j in todo)
+            from simulator.processes import run_in_workers
+
+            results = run_in_workers(n_jobs, (delayed(build_set)(j, context) for j in todo))
         for _, seconds in results:
             for name, value in seconds.items():
                 timing[name] = timing.get(name, 0.0) + value
@@ -277,14 +278,6 @@ def real_ladder(
     features = ladder_features(clips, context.box, _net(context), device=context.device)
     features.save(path)
     return features
-
-
-def _check_real_labels(clips: ClipSet) -> None:
-    for column in ("stiffness", "density"):
-        values = getattr(clips, column)
-        bad = sorted({str(g) for g, v in zip(clips.groups, values, strict=True) if not v > 0})
-        if bad:
-            raise ValueError(f"real_dir labels.csv: column {column!r} must be > 0; not in {bad}")
 
 
 def run_diagnosis(
@@ -342,7 +335,6 @@ def run_diagnosis(
         real_dir, size=spec.camera.height, clip_len=clip_len, clip_stride=clip_stride,
         fps=spec.preset.fps, max_clips_per_video=budget.clips_per_sim,
     )  # fmt: skip
-    _check_real_labels(real)
     if real.group_count < 4:
         raise ValueError(
             f"real_dir: {real.group_count} usable videos; the diagnosis needs at least 4 "

@@ -18,15 +18,22 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 from datasets.spec import DatasetSpec
+from simulator.errors import (
+    InputError,
+    check_int,
+    check_output_dir,
+    report_user_errors,
+)
+from simulator.sequence import atomic_write_bytes
 
 from .diagnosis import PIXEL_RUNGS, localise, rung_gaps
 from .domains import real_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import NULL_SEED_OFFSET, SetContext, SetJob, _run_jobs, real_ladder
+from .report import read_report
 
 __all__ = ["draw_spec", "nominal_draws", "pooled_detection", "report_real_features"]
 
@@ -134,6 +141,7 @@ def _table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+@report_user_errors
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m sim2real.power",
                                      description=__doc__.split("\n")[0])  # fmt: skip
@@ -145,36 +153,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--n-jobs", type=int, default=1)
     parser.add_argument("--out", default="outputs/sim2real/power")
     args = parser.parse_args(argv)
+    draws_help = f"--draws must be comma-separated integers >= 1, e.g. 2,4,6; got {args.draws!r}"
     try:
         counts = sorted({int(v) for v in args.draws.split(",")})
     except ValueError:
-        sys.exit(f"--draws: {args.draws!r} must be comma-separated integers >= 1, e.g. 2,4,6")
+        raise InputError(draws_help) from None
     if counts[0] < 1:
-        sys.exit(f"--draws: {args.draws!r} must be comma-separated integers >= 1, e.g. 2,4,6")
+        raise InputError(draws_help)
     if not 0 < args.alpha < 1:
-        sys.exit(f"--alpha must be in (0, 1), got {args.alpha}")
-    for path in args.reports:
-        if not Path(path).is_file():
-            sys.exit(f"reports: {path} is not a file (give diagnoses' report.json files)")
+        raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
+    check_int(args.n_jobs, "--n-jobs", 1)
+    reports = [read_report(path, "reports") for path in args.reports]
+    out = check_output_dir(args.out, "--out")
     from simulator.threads import use_process_threads
 
     use_process_threads(1)
     answers = Path(args.answers) if args.answers else None
     rows = []
-    for path in args.reports:
-        report = json.loads(Path(path).read_text())
+    for path, report in zip(args.reports, reports, strict=True):
         name = Path(path).parent.name
         by_count = _study(report, counts, args.n_jobs, args.alpha, progress=True)
         rows.append({"set": name, "truth": _truth(answers, name), "by_count": by_count})
         print(f"{name}: " + ", ".join(f"{c['sims']} sims p {c['gap_p']:.4f}" for c in by_count),
               flush=True)  # fmt: skip
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = {"alpha": args.alpha, "draws": counts, "rows": rows}
     for name, text in (("power.json", json.dumps(summary, indent=1)), ("power.md", _table(rows))):
-        tmp = out / f".{name}.tmp"
-        tmp.write_text(text)
-        tmp.replace(out / name)
+        atomic_write_bytes(out / name, text.encode())
     print(json.dumps({"sets": len(rows), "draws": counts, "detected": {
         str(c): int(sum(r["by_count"][i]["detected"] for r in rows)) for i, c in enumerate(counts)
     }}))  # fmt: skip

@@ -7,15 +7,46 @@ from __future__ import annotations
 
 import html
 import io
+import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from models.report import markdown_table, write_json, write_text
+from simulator.errors import InputError
 from simulator.sequence import atomic_write_bytes
 
-__all__ = ["contact_sheet", "json_safe", "verdict", "write_report"]
+__all__ = ["REPORT_INPUTS", "contact_sheet", "json_safe", "read_report", "verdict", "write_report"]
+
+REPORT_INPUTS = ("run", "real_dir", "box", "checkpoint", "mesh_cache", "cache_dir", "clip_len",
+                 "clip_stride", "nominal_spec", "budget_settings", "seed", "device")  # fmt: skip
+"""The ``inputs`` of a stored diagnosis that the commands reading it back rely on."""
+
+
+def read_report(path: str | Path, field: str) -> dict:
+    """A diagnosis's ``report.json`` read back, refused in one line unless it is one.
+
+    Args:
+        path: The file, or the diagnosis folder that holds it.
+        field: The command-line field that named it, for the message.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "report.json"
+    if not path.is_file():
+        raise InputError(f"{field}: {path} does not exist (give a diagnosis's report.json)")
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise InputError(f"{field}: {path} is not JSON ({error})") from None
+    inputs = report.get("inputs") if isinstance(report, dict) else None
+    missing = [k for k in REPORT_INPUTS if not isinstance(inputs, dict) or k not in inputs]
+    missing += [k for k in ("ranking", "candidates", "rungs") if not isinstance(report, dict)
+                or not isinstance(report.get(k), dict)]  # fmt: skip
+    if missing:
+        raise InputError(f"{field}: {path} is not a diagnosis's report.json (no {missing[0]})")
+    return report
 
 STAGE_COLOURS = {"scene": "#8c564b", "physics": "#1f77b4", "appearance": "#2ca02c",
                  "camera": "#ff7f0e", "null": "#7f7f7f"}  # fmt: skip

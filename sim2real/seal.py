@@ -20,7 +20,6 @@ import hashlib
 import json
 import math
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +33,7 @@ from simulator.cloth.material import (
     ClothMaterial,
     load_wang_material,
 )
+from simulator.errors import InputError, check_output_dir, report_user_errors
 
 from .candidates import Candidate, candidate_library
 from .open_set import OPEN_SET_EFFECTS, render_sealed_video
@@ -267,6 +267,7 @@ def _base_spec(data_dir: str | None, level: int) -> DatasetSpec:
     )  # fmt: skip
 
 
+@report_user_errors
 def main(argv: list[str] | None = None) -> None:
     """Command line: write one sealed set and print its answer file's sha256."""
     parser = argparse.ArgumentParser(
@@ -284,6 +285,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--density-range", type=float, nargs=2, default=(0.8, 1.25),
                         metavar=("LOW", "HIGH"), help="areal density factors drawn per video")
     args = parser.parse_args(argv)
+    check_output_dir(args.out, "--out")
     try:
         path, digest = seal_set(
             args.out, base=_base_spec(args.data_dir, args.level), seed=args.seed,
@@ -291,9 +293,8 @@ def main(argv: list[str] | None = None) -> None:
             answer_path=args.answer, overwrite=args.overwrite,
             density_range=tuple(args.density_range),
         )  # fmt: skip
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+    except ValueError as err:  # the sealing's own checks name the field
+        raise InputError(str(err)) from None
     print(f"sealed set: {args.out}")
     print(f"answer: {path} sha256 {digest}")
 

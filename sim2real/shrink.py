@@ -18,11 +18,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import sys
 from pathlib import Path
 
 from datasets.spec import PRESETS, DatasetSpec
+from simulator.errors import InputError, check_int, check_output_dir, report_user_errors
 
 from .candidates import candidate_library
 from .diagnosis import rung_gaps
@@ -30,7 +29,7 @@ from .domains import real_clips, simulated_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import SetContext, SetJob, build_set, load_run, real_ladder
 from .predictivity import predictivity
-from .report import json_safe, write_report
+from .report import json_safe, read_report, write_report
 
 __all__ = ["chosen_effects", "shrink"]
 
@@ -69,15 +68,21 @@ def _apply(spec: DatasetSpec, effects: list[tuple[str, object]]) -> DatasetSpec:
     return spec
 
 
-def _fine_tune(run: Path, data_dir: Path, checkpoint: Path, out: Path, epochs: int) -> Path:
-    from omegaconf import OmegaConf
+def _run_config(run: Path):
+    """The run's training config, refused unless it builds only allow-listed targets."""
+    from models.checkpoint import read_run_config
 
     config = run / ".hydra" / "config.yaml"
     if not config.is_file():
         raise FileNotFoundError(
             f"run: {run} has no .hydra/config.yaml; fine-tuning needs the run's training config"
         )
-    cfg = OmegaConf.load(config)
+    return read_run_config(config, "run")
+
+
+def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) -> Path:
+    from omegaconf import OmegaConf
+
     for key, value in {
         "dataset.dir": str(data_dir), "paths.output_dir": str(out),
         "paths.log_dir": str(out.parent), "paths.work_dir": str(out),
@@ -134,19 +139,20 @@ def shrink(
     from models.material_classifier import load_classifier
 
     report_dir = Path(report_dir)
-    result = json.loads((report_dir / "report.json").read_text())
+    result = read_report(report_dir, "--report")
     inputs = result["inputs"]
     if preset != "same" and preset not in PRESETS:
         raise ValueError(f"preset must be 'same' or one of {sorted(PRESETS)}, got {preset!r}")
     chosen = chosen_effects(result, effects)
     run = Path(inputs["run"])
     train_spec, checkpoint = load_run(run, inputs.get("data_dir"))
+    run_config = _run_config(run)  # checked before any data is generated
     size = train_spec.preset if preset == "same" else PRESETS[preset]
     retrain_spec = _apply(dataclasses.replace(train_spec, preset=size), chosen)
     out = report_dir / "shrink"
     data = out / "data"
     generate_dataset(retrain_spec, data, n_jobs=n_jobs, mesh_cache=inputs["mesh_cache"])
-    after_ckpt = _fine_tune(run, data, checkpoint, out / "train", epochs)
+    after_ckpt = _fine_tune(run_config, data, checkpoint, out / "train", epochs)
 
     clip_len, clip_stride = inputs["clip_len"], inputs["clip_stride"]
     real_dir = Path(inputs["real_dir"])
@@ -213,6 +219,7 @@ def shrink(
     return result["shrink"]
 
 
+@report_user_errors
 def main(argv: list[str] | None = None) -> None:
     """Command line (see the module docstring)."""
     parser = argparse.ArgumentParser(prog="python -m sim2real.shrink",
@@ -230,12 +237,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--effects", help="name=strength,... instead of the diagnosis's top")
     parser.add_argument("--n-jobs", type=int, default=2)
     args = parser.parse_args(argv)
+    check_int(args.epochs, "--epochs", 1)
+    check_int(args.n_jobs, "--n-jobs", 1)
+    check_output_dir(args.report, "--report")  # the retrained model and data go in there
     try:
         section = shrink(args.report, epochs=args.epochs, preset=args.preset,
                          effects=args.effects, n_jobs=args.n_jobs)  # fmt: skip
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+    except ValueError as err:  # the command's own checks name the field
+        raise InputError(str(err)) from None
     for label in ("before", "after"):
         c = section["correlations"][label]
         print(label, {k: (v["pearson"], v["spearman"]) for k, v in c.items()})

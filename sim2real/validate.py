@@ -27,11 +27,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from simulator.errors import InputError, check_int, check_output_dir, report_user_errors
+from simulator.sequence import atomic_write_bytes
 
 from .candidates import candidate_library
 from .detectability import detectable_at
@@ -400,6 +402,7 @@ def _diagnosed(out_dir: Path, common: dict) -> dict:
     return run_diagnosis(out_dir=out_dir, **common)
 
 
+@report_user_errors
 def main(argv: list[str] | None = None) -> None:
     """Command line (see the module docstring)."""
     parser = argparse.ArgumentParser(prog="python -m sim2real.validate",
@@ -467,25 +470,30 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     if not 0 < args.open_set_threshold <= 1:
-        print(f"error: --open-set-threshold must be in (0, 1], got {args.open_set_threshold}",
-              file=sys.stderr)  # fmt: skip
-        sys.exit(2)
+        raise InputError(f"--open-set-threshold must be in (0, 1], got {args.open_set_threshold}")
     if args.open_set_threshold != OPEN_SET_MIN_CLOSURE and not args.rescore:
-        print("error: --open-set-threshold applies only with --rescore (a blind run uses "
-              "today's rules)", file=sys.stderr)  # fmt: skip
-        sys.exit(2)
+        raise InputError(
+            "--open-set-threshold applies only with --rescore (a blind run uses today's rules)"
+        )
+    if args.sets < (0 if args.kinds else 1):  # with a plan, 0 = all its sets
+        raise InputError(
+            f"--sets must be an integer >= 1 (0 means every set of a --kinds plan), got {args.sets}"
+        )
+    for name, low in (("first_seed", 0), ("skip", 0), ("videos", 4), ("n_jobs", 1),
+                      ("stability", 0)):  # fmt: skip
+        check_int(getattr(args, name), "--" + name.replace("_", "-"), low)
     args.finished_only = args.finished_only or args.rescore
-    out = Path(args.out)
+    out = check_output_dir(args.out, "--out")
     try:
         budget = load_budget(args.budget)
         base, _ = load_run(args.run, args.data_dir)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+    except ValueError as err:
+        raise InputError(str(err)) from None
     if args.scored and args.rescore:
-        print("error: --scored rows cannot be decided again (their reports are elsewhere); "
-              "use it without --rescore", file=sys.stderr)  # fmt: skip
-        sys.exit(2)
+        raise InputError(
+            "--scored rows cannot be decided again (their reports are elsewhere); use it "
+            "without --rescore"
+        )
     library = candidate_library(base)
     try:
         plan = set_plan(args.kinds, sorted(library), args.first_seed)
@@ -495,8 +503,7 @@ def main(argv: list[str] | None = None) -> None:
         plan = whole if plan is None else whole[args.skip :][: args.sets or None]
         earlier = scored_rows(args.scored, plan)
     except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+        raise InputError(str(err)) from None
     rows = []
     for seed, kind, effect in plan:
         start = time.perf_counter()
@@ -541,16 +548,17 @@ def main(argv: list[str] | None = None) -> None:
         rows.append(row)
         print(json.dumps(row), flush=True)
     if not rows:
-        print(f"error: no finished sealed set of the plan under {out}/reports", file=sys.stderr)
-        sys.exit(2)
+        raise InputError(f"no finished sealed set of the plan under {out}/reports")
     summary = summarise(rows)
     out.mkdir(parents=True, exist_ok=True)
     stem, table = "validation", _table(summary, rows)
     if args.rescore:
         stem, table = "rescored", _rescored_note(args.open_set_threshold, rows) + table
         summary["open_set_threshold"] = args.open_set_threshold
-    (out / f"{stem}.json").write_text(json.dumps({"summary": summary, "sets": rows}, indent=2))
-    (out / f"{stem}.md").write_text(table)
+    atomic_write_bytes(
+        out / f"{stem}.json", json.dumps({"summary": summary, "sets": rows}, indent=2).encode()
+    )
+    atomic_write_bytes(out / f"{stem}.md", table.encode())
     _confusion_png(out / ("confusion_rescored.png" if args.rescore else "confusion.png"), rows)
     print(table)
     print(

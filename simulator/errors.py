@@ -18,10 +18,13 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
+import errno
 import functools
 import importlib
 import inspect
 import math
+import os
+import shutil
 import sys
 import types
 import typing
@@ -60,35 +63,153 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return (InputError, FileNotFoundError, MeshError, *_DOMAIN_ERRORS)
 
 
-def _user_error_in(exc: BaseException) -> BaseException | None:
-    """``exc`` if it is a user error, or the user error that Hydra's instantiate wrapped."""
-    user = _user_errors()
+INTERRUPTED = "interrupted; rerun the same command to resume"
+"""The line Ctrl-C ends a command with (exit status 130, as a shell reports SIGINT)."""
+
+_ENVIRONMENT_ERRNOS = frozenset({
+    errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR, errno.EISDIR,
+    errno.EDQUOT, errno.ENAMETOOLONG, errno.EFBIG, errno.EEXIST,
+})  # fmt: skip
+"""File-system errors a user fixes (a full disk, a read-only or wrong destination)."""
+
+
+def _chain(exc: BaseException) -> Iterator[BaseException]:
+    """``exc`` and the errors it was raised from or during (``__cause__``, ``__context__``)."""
+    seen: set[int] = set()
     current: BaseException | None = exc
-    for _ in range(8):  # Hydra nests at most a few wrappers
-        if current is None or isinstance(current, user):
+    while current is not None and id(current) not in seen and len(seen) < 16:
+        seen.add(id(current))
+        yield current
+        current = current.__cause__ or current.__context__
+
+
+def _wrapper_module(exc: BaseException) -> bool:
+    """Errors of the config machinery that wrap the error raised inside it."""
+    return type(exc).__module__.split(".")[0] in ("hydra", "omegaconf")
+
+
+def _user_error_in(exc: BaseException) -> BaseException | None:
+    """The error a user can fix that ``exc`` is or wraps, else ``None``.
+
+    Hydra's ``instantiate`` and OmegaConf's interpolation resolvers wrap the error raised
+    inside them; a file-system error (a full disk, a read-only destination) is the user's too.
+    """
+    user = _user_errors()
+    for current in _chain(exc):
+        if isinstance(current, user):
             return current
-        if not type(current).__module__.startswith("hydra."):
+        if isinstance(current, OSError) and current.errno in _ENVIRONMENT_ERRNOS:
+            return current
+        if not _wrapper_module(current):
             return None
-        current = current.__cause__
     return None
 
 
+_CONFIG_ERRORS = frozenset({
+    "hydra.errors.ConfigCompositionException", "hydra.errors.MissingConfigException",
+    "hydra.errors.OverrideParseException", "omegaconf.errors.MissingMandatoryValue",
+})  # fmt: skip
+"""Hydra's own refusals of a command line: an override that does not parse or fit."""
+
+
+def _config_error(exc: BaseException) -> bool:
+    return any(f"{c.__module__}.{c.__name__}" in _CONFIG_ERRORS for c in type(exc).__mro__)
+
+
+def _message(exc: BaseException) -> str:
+    key = getattr(exc, "full_key", None)
+    if type(exc).__name__ == "MissingMandatoryValue" and key:
+        return f"{key} is required: give {key}=<value> on the command line"
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        if exc.errno == errno.EEXIST:
+            return f"cannot make the folder {exc.filename}: a file of that name exists"
+        return f"cannot write {exc.filename}: {exc.strerror}"
+    return " ".join(str(exc).split())  # one line, whatever the message held
+
+
+def register_config_resolvers() -> None:
+    """OmegaConf resolvers the configs use: ``${path_component:<field>,<value>}``.
+
+    A run folder's path is resolved by Hydra before the command runs; a name in it that is
+    not a single path component (``run_name=../../x``) is refused there, before any folder
+    is made.
+    """
+    omegaconf = sys.modules.get("omegaconf")  # loaded by every command that has configs
+    if omegaconf is not None and not omegaconf.OmegaConf.has_resolver("path_component"):
+        omegaconf.OmegaConf.register_new_resolver(
+            "path_component", lambda field, value: check_name(value, str(field))
+        )
+
+
 def report_user_errors(main: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap an entry point so that a user error prints one line and exits with status 2."""
+    """Wrap a command so that a user error prints one line and exits with status 2.
+
+    Ctrl-C prints :data:`INTERRUPTED` and exits with 130, whether it arrived in Python or in
+    compiled code (numba reports it as a ``SystemError`` raised during the interrupt).
+    Programming errors keep their traceback. Put it outside ``@hydra.main`` as well as on
+    the task: outside, it also reports what Hydra raises while composing the config and
+    making the run folder (it sets ``HYDRA_FULL_ERROR`` so that Hydra passes errors on).
+    """
 
     @functools.wraps(main)
     def wrapped(*args, **kwargs):
+        os.environ["HYDRA_FULL_ERROR"] = "1"
+        register_config_resolvers()
+        stderr = sys.stderr
+        if not isinstance(stderr, _LineEnds):
+            sys.stderr = _LineEnds(stderr)
         try:
             return main(*args, **kwargs)
-        except Exception as exc:
+        except (Exception, KeyboardInterrupt) as exc:
+            _close_progress_bars()
+            if any(isinstance(e, KeyboardInterrupt) for e in _chain(exc)):
+                _last_line(INTERRUPTED)
+                raise SystemExit(130) from None
             user = _user_error_in(exc)
+            if user is None and _config_error(exc):
+                user = exc
             if user is None:
                 raise
-            message = " ".join(str(user).split())  # one line, whatever the message held
-            print(f"error: {message}", file=sys.stderr)
+            _last_line(f"error: {_message(user)}")
             raise SystemExit(2) from None
+        finally:
+            sys.stderr = stderr
 
     return wrapped
+
+
+class _LineEnds:
+    """``sys.stderr`` that remembers whether its last write ended a line (a bar's does not)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self.at_line_start = True
+
+    def write(self, text: str) -> int:
+        """Write ``text`` to the stream."""
+        if text:
+            self.at_line_start = text.endswith("\n")
+        return self._stream.write(text)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
+def _last_line(text: str) -> None:
+    """Print a command's last line on stderr, on a line of its own."""
+    if not getattr(sys.stderr, "at_line_start", True):
+        print(file=sys.stderr)
+    print(text, file=sys.stderr)
+
+
+def _close_progress_bars() -> None:
+    """Close the tqdm bars still open, so that they do not redraw over the last line."""
+    tqdm = sys.modules.get("tqdm")
+    if tqdm is None:
+        return
+    for bar in list(getattr(tqdm.tqdm, "_instances", ())):
+        with contextlib.suppress(Exception):  # a bar interrupted while it was being set up
+            bar.close()
 
 
 @contextlib.contextmanager
@@ -168,6 +289,91 @@ def check_bool(value: Any, field: str) -> bool:
 
 
 
+def check_name(value: Any, field: str) -> str:
+    """``value`` as a single path component: a file or folder name, never a path.
+
+    Names become parts of paths (run folders, report folders); one with a separator, ``..``
+    or a NUL could point outside the folder it is meant for.
+    """
+    text = str(value) if isinstance(value, int) and not isinstance(value, bool) else value
+    if (
+        not isinstance(text, str)
+        or not text.strip()
+        or text != text.strip()
+        or text in (".", "..")
+        or any(c in text for c in ("/", "\\", "\x00"))
+    ):
+        raise InputError(
+            f"{field} must be a single file or folder name (no '/' or '\\', not '.' or "
+            f"'..'), got {value!r}"
+        )
+    return text
+
+
+def resolve_inside(root: str | Path, name: str, field: str) -> Path:
+    """``root / name`` resolved, refused unless it stays inside ``root`` (links followed)."""
+    base = Path(root).resolve()
+    path = (base / name).resolve()
+    if not path.is_relative_to(base):
+        raise InputError(f"{field} {name!r} points outside {root} (to {path}); keep files in it")
+    return path
+
+
+MIN_FREE_BYTES = 64 * 2**20
+"""Free space an output folder must have before a command starts [bytes]."""
+
+
+def _existing_ancestor(path: Path) -> Path:
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_output_dir(value: Any, field: str, *, min_free_bytes: int = MIN_FREE_BYTES) -> Path:
+    """``value`` as a folder that outputs can be written into, checked before any work.
+
+    Refused in one line: a path that is a file (or lies below one), a folder this process
+    may not write (permissions, a read-only file system) and a disk with less than
+    ``min_free_bytes`` free. Nothing is created.
+    """
+    if not isinstance(value, str | Path) or not str(value).strip():
+        raise InputError(f"{field} must be a folder path, got {value!r}")
+    path = Path(value)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{field}: {path} exists and is not a folder")
+    base = _existing_ancestor(path.absolute())
+    if not base.is_dir():
+        raise InputError(f"{field}: {base} is a file, so {path} cannot be made below it")
+    if not os.access(base, os.W_OK | os.X_OK):
+        why = "a read-only file system" if _read_only(base) else "no write permission"
+        raise InputError(f"{field}: {path} cannot be written ({base}: {why})")
+    free = shutil.disk_usage(base).free
+    if free < min_free_bytes:
+        raise InputError(
+            f"{field}: {path} is on a disk with {free / 2**20:.1f} MiB free; at least "
+            f"{min_free_bytes / 2**20:.0f} MiB are needed"
+        )
+    return path
+
+
+def check_output_file(value: Any, field: str, *, min_free_bytes: int = MIN_FREE_BYTES) -> Path:
+    """``value`` as a file path whose folder can take it (:func:`check_output_dir`)."""
+    if not isinstance(value, str | Path) or not str(value).strip():
+        raise InputError(f"{field} must be a file path, got {value!r}")
+    path = Path(value)
+    if path.is_dir():
+        raise InputError(f"{field}: {path} is a folder; give a file path")
+    check_output_dir(path.parent, field, min_free_bytes=min_free_bytes)
+    return path
+
+
+def _read_only(path: Path) -> bool:
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
 def check_device(value: Any, field: str) -> str:
     """A torch device name (``auto``, ``cpu``, ``cuda``, ``cuda:N``) this machine has."""
     import torch
@@ -220,6 +426,40 @@ def check_node(values: Any, field: str) -> None:
     except (ImportError, AttributeError) as err:
         raise InputError(f"{field}._target_: cannot import {target!r} ({err})") from None
     _check_params(values, _params_of(obj), field)
+
+
+def check_targets(node: Any, field: str, allowed: Iterable[str]) -> None:
+    """Refuse a config whose ``_target_`` entries, nested ones included, are not all allowed.
+
+    A config that came with someone else's files (a checkpoint's ``net_config``, a run
+    folder's ``.hydra/config.yaml``) is data: instantiating an arbitrary ``_target_`` would
+    call any importable function. Every node is checked before anything is imported.
+
+    Args:
+        node: A plain mapping or list (``OmegaConf.to_container`` of a config).
+        field: Where the node came from, for the message (``net_config``, ``run config``).
+        allowed: Dotted names that may be instantiated.
+    """
+    names = set(allowed)
+
+    def walk(value: Any, key: str) -> None:
+        if isinstance(value, Mapping):
+            for name, item in value.items():
+                name = str(name)
+                where = f"{key}.{name}" if key else name
+                if name == "_target_" and (
+                    not isinstance(item, str) or item not in names
+                ):
+                    raise InputError(
+                        f"{field}: {where} is {item!r}, which is not one of the allowed "
+                        f"targets: {', '.join(sorted(names))}"
+                    )
+                walk(item, where)
+        elif isinstance(value, list | tuple):
+            for index, item in enumerate(value):
+                walk(item, f"{key}[{index}]")
+
+    walk(node, "")
 
 
 def _import_target(path: str) -> Any:

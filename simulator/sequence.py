@@ -14,15 +14,20 @@ File format (``.npz``, written atomically, never containing NaN):
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
+import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SCHEMA_VERSION", "MeshSequence", "atomic_write_bytes"]
+from .errors import InputError
+
+__all__ = ["SCHEMA_VERSION", "MeshSequence", "atomic_write_bytes", "staged_folder"]
 
 SCHEMA_VERSION = 1
 
@@ -44,6 +49,34 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def staged_folder(dest: str | Path, *, replace: bool = False) -> Iterator[Path]:
+    """A fresh folder beside ``dest`` whose files reach ``dest`` once the block ends without error.
+
+    On success a new ``dest`` is the stage renamed; an existing one receives the staged files
+    (same names replaced, other files kept) or, with ``replace`` (a folder the command owns),
+    is replaced whole. On any error or interrupt the stage is removed, so no half-written
+    series is left at ``dest``.
+    """
+    dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".tmp"))
+    try:
+        stage.chmod(0o777 & ~_UMASK)  # mkdtemp makes it private; outputs are ordinary folders
+        yield stage
+        if dest.exists() and replace:
+            shutil.rmtree(dest)
+        if not dest.exists():
+            stage.rename(dest)
+            return
+        for item in sorted(stage.iterdir()):
+            os.replace(item, dest / item.name)
+        stage.rmdir()
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
         raise
 
 
@@ -118,11 +151,33 @@ class MeshSequence:
 
     @staticmethod
     def load(path: str | Path) -> MeshSequence:
-        """Read a file written by :meth:`save`."""
-        with np.load(path) as data:
+        """Read a file written by :meth:`save` (arrays only: nothing pickled is loaded).
+
+        Raises:
+            FileNotFoundError: ``path`` does not exist.
+            InputError: it is not a mesh sequence of this schema (damaged, another file).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} does not exist (a sequence.npz of the simulator)")
+        try:
+            return MeshSequence._read(path)
+        except InputError:
+            raise
+        except Exception as error:  # whatever a damaged or foreign file made numpy raise
+            text = " ".join(str(error).split())[:160] or type(error).__name__
+            if "pickled" in text or "zip file" in text:
+                text = "not an .npz archive of arrays"
+            raise InputError(
+                f"{path} is not a mesh sequence written by the simulator ({text})"
+            ) from None
+
+    @staticmethod
+    def _read(path: Path) -> MeshSequence:
+        with np.load(path, allow_pickle=False) as data:
             meta = json.loads(bytes(data["meta_json"]).decode())
             if meta.get("schema_version") != SCHEMA_VERSION:
-                raise ValueError(
+                raise InputError(
                     f"{path}: schema_version {meta.get('schema_version')} != {SCHEMA_VERSION}"
                 )
             return MeshSequence(

@@ -2,12 +2,15 @@
 
 import os
 
+import omegaconf  # noqa: F401  (loaded before the configs' resolvers are registered)
 import pytest
 import torch
 
+from simulator.errors import register_config_resolvers
 from simulator.threads import torch_threads
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+register_config_resolvers()  # the configs' ${path_component:...}, as every command registers it
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -13,7 +13,6 @@ The job's fields are checked (type from the tool's ``run`` signature, range from
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import hydra
 from hydra.utils import instantiate
@@ -25,6 +24,7 @@ from simulator.errors import (
     check_float,
     check_int,
     check_node,
+    check_output_dir,
     report_user_errors,
 )
 from simulator.sequence import atomic_write_bytes
@@ -75,7 +75,7 @@ def run(cfg: DictConfig):
     """Run ``cfg.tissue_job`` into ``cfg.out_dir`` (with its resolved config); its result."""
     check_int(cfg.seed, "seed", 0)
     _check_job(OmegaConf.to_container(cfg.tissue_job, resolve=True))
-    out = Path(cfg.out_dir)
+    out = check_output_dir(cfg.out_dir, "out_dir")
     out.mkdir(parents=True, exist_ok=True)
     job = OmegaConf.to_yaml(cfg.tissue_job, resolve=True)
     atomic_write_bytes(out / "tissue_job.yaml", job.encode())
@@ -83,6 +83,7 @@ def run(cfg: DictConfig):
     return instantiate(cfg.tissue_job, _convert_="all")(out)
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../../configs", config_name="tissue")
 @report_user_errors
 def main(cfg: DictConfig) -> None:

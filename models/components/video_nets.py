@@ -76,15 +76,18 @@ def load_encoder_state(encoder: FrameEncoder, checkpoint: str | Path) -> None:
     Accepts a Lightning checkpoint (``state_dict`` with ``net.encoder.*`` keys) or a plain
     state dict of a net (``encoder.*``) or of an encoder.
     """
+    from models.checkpoint import read_checkpoint
+
     path = Path(checkpoint)
     if not path.is_file():
         raise FileNotFoundError(
             f"encoder_checkpoint {path} does not exist (baseline 2 needs baseline 1's "
             "checkpoint: train the frame model first)"
         )
-    # Our own checkpoints; they hold plain hyper-parameter dicts besides the tensors.
-    raw = torch.load(path, map_location="cpu", weights_only=False)
+    raw = read_checkpoint(path, "encoder_checkpoint")
     state = raw.get("state_dict", raw)
+    if not isinstance(state, dict):
+        state = {}
     wanted = set(encoder.state_dict())
     for prefix in ("net.encoder.", "encoder.", ""):
         picked = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Callable
 
 import numpy as np
@@ -11,13 +12,45 @@ import torch
 
 from simulator.cloth.effects import PhysicsEffects
 from simulator.cloth.material import ClothMaterial
+from simulator.errors import InputError
 from simulator.forces import AirDamping
 from simulator.integrators import IntegratorBackwardEuler, SimulationDiverged, solve_static
 from simulator.kernels import BACKENDS, resolve_backend
 from simulator.sequence import MeshSequence
 from simulator.solvers.newton import NewtonSettings
 
-__all__ = ["SimSettings", "replay_capsules", "simulate", "with_capsules"]
+__all__ = [
+    "RECORDING_BYTES_PER_COORD",
+    "SimSettings",
+    "check_recording_memory",
+    "replay_capsules",
+    "simulate",
+    "with_capsules",
+]
+
+RECORDING_BYTES_PER_COORD = 12
+"""Memory of a recorded vertex coordinate [bytes]: float64 while simulating, float32 after."""
+
+
+def check_recording_memory(
+    record_time: float, fps: float, instances: int, verts: int, *, field: str = "record_time"
+) -> int:
+    """Refuse a recording whose frames would take more than half of this machine's memory.
+
+    A rollout keeps every recorded frame in memory; ``record_time=1e7`` would otherwise be
+    accepted and fail hours later. Returns the frame count.
+    """
+    frames = round(record_time * fps) + 1
+    need = frames * instances * verts * 3 * RECORDING_BYTES_PER_COORD
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if need > total / 2:
+        most = (total / 2 / (instances * verts * 3 * RECORDING_BYTES_PER_COORD) - 1) / fps
+        raise InputError(
+            f"{field} must be at most {most:.0f} s here: {record_time:g} s at {fps:g} "
+            f"frames/s keeps {frames} frames of {instances} x {verts} vertices in memory "
+            f"({need / 2**30:.1f} GiB, more than half of this machine's {total / 2**30:.0f} GiB)"
+        )
+    return frames
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,9 +11,6 @@ line ``error: <field> must be ...`` (:mod:`simulator.errors`), and nothing is wr
 from __future__ import annotations
 
 import logging
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import hydra
@@ -22,17 +19,19 @@ from omegaconf import DictConfig, OmegaConf
 
 from simulator.cloth.effects import PhysicsEffects
 from simulator.cloth.material import ClothMaterial, check_class_ids, class_summary
-from simulator.cloth.rollout import simulate
+from simulator.cloth.rollout import check_recording_memory, simulate
 from simulator.errors import (
     InputError,
     check_device,
     check_float,
     check_int,
     check_node,
+    check_output_dir,
+    check_output_file,
     config_errors,
     report_user_errors,
 )
-from simulator.sequence import MeshSequence
+from simulator.sequence import MeshSequence, staged_folder
 from simulator.threads import check_threads, use_process_threads
 
 log = logging.getLogger(__name__)
@@ -69,10 +68,15 @@ def _checked(cfg: DictConfig) -> dict:
         )
     speeds = getattr(scenario, "wind_speeds", None)
     wind_level = check_int(cfg.wind_level, "wind_level", 0, len(speeds) - 1 if speeds else None)
+    check_recording_memory(record_time, fps, len(classes), scenario.mesh().vert_count)
+    out_file = check_output_file(cfg.out_file, "out_file")
+    if export is not None:
+        check_output_dir(out_file.parent / f"frames_{export}", "export")
     return {
         "threads": threads, "classes": classes, "seed": seed, "fps": fps,
         "record_time": record_time, "export": export, "scenario": scenario,
         "settings": settings, "effects": effects, "wind_level": wind_level,
+        "out_file": out_file,
     }  # fmt: skip
 
 
@@ -94,7 +98,7 @@ def run(cfg: DictConfig):
         progress=True,
     )
     sequence.meta["classes"] = [class_summary(c) for c in classes]
-    path = sequence.save(cfg.out_file)
+    path = sequence.save(fields["out_file"])
     log.info("wrote %s (%d instances x %d frames)", path, len(classes), sequence.frame_count)
     if fields["export"]:
         fmt = fields["export"]
@@ -104,22 +108,13 @@ def run(cfg: DictConfig):
 
 
 def _export(sequence: MeshSequence, out_dir: Path, fmt: str) -> list[Path]:
-    """Export into a temporary folder renamed into place, so no half series is left behind."""
-    tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.", suffix=".tmp"))
-    umask = os.umask(0)
-    os.umask(umask)
-    tmp.chmod(0o777 & ~umask)  # mkdtemp makes it private; the series is an ordinary folder
-    try:
-        written = sequence.export(tmp, fmt=fmt)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    """Export into a stage that replaces ``out_dir`` whole, so no half series is left behind."""
+    with staged_folder(out_dir, replace=True) as stage:
+        written = sequence.export(stage, fmt=fmt)
     return [out_dir / p.name for p in written]
 
 
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
 @hydra.main(version_base="1.3", config_path="../../configs", config_name="simulate")
 @report_user_errors
 def main(cfg: DictConfig) -> None:

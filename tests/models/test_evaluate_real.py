@@ -2,6 +2,7 @@
 
 import json
 import logging
+import os
 import re
 import subprocess
 import sys
@@ -192,3 +193,40 @@ def test_checkpoints_from_before_the_class_grid_read_as_wang54(tmp_path):
     assert module.hparams["net_config"]["num_classes"] == 54
     assert module.class_grid == ClassGrid.from_json(legacy_class_grid())
     assert evaluate.module_grid(module).num_classes == 54
+
+
+def test_a_video_replaced_with_the_same_size_and_time_is_another_input(tmp_path, fabric_folder):
+    settings = evaluate._settings(_cfg("ckpt_path=x", f"real_dir={fabric_folder}"))
+    ckpt = write_checkpoint(tmp_path / "best.ckpt")
+    before, _ = evaluate.evaluation_folder(tmp_path, ckpt, None, fabric_folder, settings)
+    video = fabric_folder / "videos" / "f0_w1.mp4"
+    stat = video.stat()
+    data = bytearray(video.read_bytes())
+    data[-1] ^= 0xFF
+    video.write_bytes(bytes(data))
+    os.utime(video, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    after, _ = evaluate.evaluation_folder(tmp_path, ckpt, None, fabric_folder, settings)
+    assert after != before
+    (fabric_folder / "notes.txt").write_text("not footage")  # not read, so not an input
+    assert evaluate.evaluation_folder(tmp_path, ckpt, None, fabric_folder, settings)[0] == after
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        (["f0_w1.mp4,1,0.2", "f1_w1.mp4,1,0.2", "f2_w1.mp4,1,0.2"],
+         r"every measured column of .* has one value for all 3 videos \(stiffness = 1, density"),
+        (["f0_w1.mp4,1,0.2", "f1_w1.mp4,2,0.3", "short.mp4,3,0.4"],
+         r"2 of the 3 videos listed in .* are long enough for a clip; .* at least 3"),
+    ],
+)  # fmt: skip
+def test_footage_that_cannot_be_correlated_is_refused(rows, message, tmp_path, fabric_folder,
+                                                      monkeypatch):  # fmt: skip
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("predict ran on footage that cannot be correlated")
+
+    monkeypatch.setattr(evaluate, "predict", must_not_run)
+    (fabric_folder / "labels.csv").write_text("\n".join(["video,stiffness,density", *rows]) + "\n")
+    module = evaluate.load_classifier(write_checkpoint(tmp_path / "best.ckpt"))
+    with pytest.raises(InputError, match=message):
+        evaluate.evaluate_real(module, fabric_folder, tmp_path / "out", size=32, clip_len=4)

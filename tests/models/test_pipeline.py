@@ -13,6 +13,8 @@ from hydra.utils import instantiate
 import train as train_entry
 from models.evaluate import run as evaluate_run
 from models.material_classifier import load_classifier
+from simulator.errors import InputError
+from tests.models.conftest import write_checkpoint
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
 FAST = [
@@ -227,7 +229,7 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     after = load_classifier(stage2 / "checkpoints" / "best.ckpt")
     for name, value in after.named_parameters():
         torch.testing.assert_close(value, first.get_parameter(name), rtol=0, atol=0, msg=name)
-    with pytest.raises(FileNotFoundError, match=r"init_from .*nope.ckpt does not exist"):
+    with pytest.raises(InputError, match=r"init_from: .*nope.ckpt does not exist"):
         train_entry.train(_train_cfg(model_dataset, tmp_path / "x", "init_from=nope.ckpt"))
     wrong = _train_cfg(model_dataset, tmp_path / "y", f"init_from={base1}/checkpoints/best.ckpt")
     with pytest.raises(ValueError, match=r"init_from .* does not fit this model"):
@@ -289,10 +291,13 @@ def test_one_config_and_seed_train_the_same_weights(model_dataset, tmp_path):
 def test_evaluation_errors_name_the_problem(model_dataset, real_folder, tmp_path):
     with pytest.raises(ValueError, match=r"data_dir .* and/or real_dir"):
         evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt"]))
-    with pytest.raises(FileNotFoundError, match="real_dir"):
+    with pytest.raises(InputError, match=r"^ckpt_path: x\.ckpt does not exist"):  # named first
         evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt", f"real_dir={tmp_path}/none"]))
-    with pytest.raises(FileNotFoundError, match="checkpoint"):
+    with pytest.raises(InputError, match=r"^ckpt_path: x\.ckpt does not exist"):
         evaluate_run(_compose("evaluate", ["ckpt_path=x.ckpt", f"data_dir={model_dataset}"]))
+    ckpt = write_checkpoint(tmp_path / "run" / "best.ckpt")
+    with pytest.raises(FileNotFoundError, match="real_dir"):
+        evaluate_run(_compose("evaluate", [f"ckpt_path={ckpt}", f"real_dir={tmp_path}/none"]))
     (real_folder / "labels.csv").write_text("video,stiffness\nfabric0.mp4,1.0\n")
     from datasets.real_video import RealVideoDataset
 
