@@ -17,7 +17,7 @@ A run's identity includes its dataset: ``dataset.json`` in the run folder record
 folders and the sha256 of their ``manifest.json`` when the run starts, and a later command
 that would resume or re-evaluate the run on another dataset is refused. Every field is
 checked before anything is built or written; a bad value ends the command with one line
-``error: <field> must be ...`` (:mod:`simulator.errors`).
+``error: <field> must be ...`` (:mod:`common.commands`).
 """
 
 from __future__ import annotations
@@ -34,18 +34,12 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from simulator.errors import (
-    InputError,
-    check_bool,
-    check_choice,
-    check_int,
-    check_name,
-    check_node,
-    config_errors,
-    report_user_errors,
-    require_cuda,
-)
-from simulator.sequence import atomic_write_bytes
+from common.checks import check_bool, check_choice, check_int, require_cuda
+from common.commands import report_user_errors
+from common.configs import check_node, config_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_name
 from simulator.threads import check_threads
 
 log = logging.getLogger(__name__)

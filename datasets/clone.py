@@ -44,7 +44,7 @@ hidden folder there and moved into place, so a failure leaves none of them):
 
 Every field is checked, the checkpoint loaded and the video probed before anything is
 predicted or simulated: a bad value ends the command with one line ``error: <field> ...``
-(:mod:`simulator.errors`). This module is an application on top of both the datasets and the
+(:mod:`common.commands`). This module is an application on top of both the datasets and the
 models package (it imports :mod:`models`, which imports datasets' loaders); nothing in
 ``datasets`` imports it.
 """
@@ -67,21 +67,17 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from common.checks import check_device, check_float, check_int
+from common.commands import report_user_errors
+from common.configs import config_errors
+from common.errors import InputError
+from common.paths import check_output_dir
 from models.evaluate import check_class_count, module_grid, predict
 from models.material_classifier import MaterialClassifierModule, load_classifier
 from models.metrics import ClassGrid
 from models.scores import material_scores
 from simulator.cloth.material import WANG54, MaterialSet
 from simulator.cloth.rollout import check_recording_memory
-from simulator.errors import (
-    InputError,
-    check_device,
-    check_float,
-    check_int,
-    check_output_dir,
-    config_errors,
-    report_user_errors,
-)
 from simulator.threads import check_threads, use_process_threads
 
 from .generate import spec_from_config

@@ -16,7 +16,7 @@ on a 2-core CPU the first time (the solver's kernels are compiled and cached), a
 after that. The full-size mesh is one override away: ``level=3 classes=[0,13,26,40,53]``
 (and ``record_time=8`` records longer). Every field is checked before anything is
 simulated: a bad value ends the command with one line ``error: <field> must be ...``
-(:mod:`simulator.errors`), and nothing is written.
+(:mod:`common.commands`), and nothing is written.
 """
 
 from __future__ import annotations
@@ -31,16 +31,13 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
+from common.checks import check_float, check_int
+from common.commands import report_user_errors
+from common.configs import config_errors
+from common.errors import InputError
+from common.paths import check_output_dir
 from simulator.cloth.material import class_summary
 from simulator.cloth.rollout import check_recording_memory
-from simulator.errors import (
-    InputError,
-    check_float,
-    check_int,
-    check_output_dir,
-    config_errors,
-    report_user_errors,
-)
 from simulator.threads import check_threads, use_process_threads
 
 from .generate import spec_from_config

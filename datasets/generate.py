@@ -5,7 +5,7 @@ writes shards, unit indices and the manifest into ``out_dir`` (see
 :mod:`datasets.manifest` for the layout); running it again resumes.
 
 Every field is checked before the output folder is touched: a bad value ends the command
-with one line ``error: <field> must be ...`` (:mod:`simulator.errors`).
+with one line ``error: <field> must be ...`` (:mod:`common.commands`).
 """
 
 from __future__ import annotations
@@ -16,24 +16,16 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from common.checks import check_bool, check_choice, check_device, check_float, check_int
+from common.commands import report_user_errors
+from common.configs import check_node, config_errors
+from common.errors import InputError
+from common.paths import check_name, check_output_dir
 from render.effects import VisualEffects
 from render.textures import TextureMode
 from simulator.cloth.effects import PhysicsEffects
 from simulator.cloth.material import WANG54, MaterialError, MaterialSet
 from simulator.cloth.scenes import RESOLUTION_LEVELS
-from simulator.errors import (
-    InputError,
-    check_bool,
-    check_choice,
-    check_device,
-    check_float,
-    check_int,
-    check_name,
-    check_node,
-    check_output_dir,
-    config_errors,
-    report_user_errors,
-)
 from simulator.threads import use_process_threads
 
 from .generation import generate_dataset

@@ -24,12 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from common.errors import InputError
+from common.processes import run_in_workers, start_manager
 from render.backgrounds import make_background
 from render.textures import make_texture
 from simulator.cloth.material import WANG54, ClothMaterial, load_wang_material
 from simulator.cloth.rollout import simulate, with_capsules
-from simulator.errors import InputError
-from simulator.processes import run_in_workers, start_manager
 from simulator.sequence import MeshSequence
 from simulator.threads import torch_threads
 

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.files import atomic_write_bytes
 from simulator.cloth.material import WANG54, MaterialError, MaterialSet
-from simulator.sequence import atomic_write_bytes
 
 from .plan import SimulationPlan
 from .shards import ShardError, verify_shard

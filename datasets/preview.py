@@ -18,15 +18,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from common.checks import check_choice, check_int
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_dir
 from simulator.cloth.material import WANG54, MaterialSet
-from simulator.errors import (
-    InputError,
-    check_choice,
-    check_int,
-    check_output_dir,
-    report_user_errors,
-)
-from simulator.sequence import atomic_write_bytes
 
 from .clip_dataset import ClothClipDataset
 from .spec import SPLITS
@@ -180,7 +177,7 @@ def write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
     """Write RGB uint8 frames (N, H, W, 3) as an mp4 (mp4v), atomically.
 
     OpenCV writes into a private temporary folder; the finished file is then put in place
-    by :func:`simulator.sequence.atomic_write_bytes`, with the usual file mode.
+    by :func:`common.files.atomic_write_bytes`, with the usual file mode.
     """
     height, width = frames.shape[1:3]
     with tempfile.TemporaryDirectory(prefix="clothsense-mp4-") as folder:

@@ -38,7 +38,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from simulator.errors import InputError, check_float, check_int
+from common.checks import check_float, check_int
+from common.errors import InputError
 
 from .clip_dataset import clip_tensor
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from simulator.errors import InputError
+from common.errors import InputError
 
 from .manifest import read_json
 from .spec import DatasetSpec

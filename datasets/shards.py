@@ -29,8 +29,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simulator.errors import user_error
-from simulator.sequence import atomic_write_bytes
+from common.errors import user_error
+from common.files import atomic_write_bytes
 
 __all__ = [
     "ShardError",

@@ -5,7 +5,7 @@ Runs are exchanged between users, so nothing read from one may run code:
 * :func:`read_checkpoint` loads with ``torch.load(weights_only=True)``, whose unpickler builds
   only tensors, containers and numbers; every way a file can fail to be a checkpoint
   (missing, a folder, empty, truncated, text, a bare tensor, pickled code) is one
-  :class:`~simulator.errors.InputError` that names the field and the file.
+  :class:`~common.errors.InputError` that names the field and the file.
 * A checkpoint's ``net_config`` is instantiated only when each ``_target_`` in it, nested
   ones included, is one of :data:`NET_TARGETS`; a run folder's ``.hydra/config.yaml`` only
   when each is one of :func:`run_config_targets` (:func:`read_run_config`).
@@ -21,7 +21,8 @@ from typing import Any
 
 import torch
 
-from simulator.errors import InputError, check_targets
+from common.configs import check_targets
+from common.errors import InputError
 
 __all__ = [
     "CHECKPOINT_HELP",

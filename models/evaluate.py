@@ -59,19 +59,15 @@ from omegaconf import DictConfig, OmegaConf
 from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
+from common.checks import check_choice, check_float, check_int
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_dir
 from datasets.clip_dataset import ClothClipDataset
 from datasets.manifest import SPLIT_PROTOCOLS, Manifest, legacy_class_grid
 from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset, footage_files
 from datasets.spec import SPLITS
-from simulator.errors import (
-    InputError,
-    check_choice,
-    check_float,
-    check_int,
-    check_output_dir,
-    report_user_errors,
-)
-from simulator.sequence import atomic_write_bytes
 
 from .correlation import MIN_SAMPLES, correlate
 from .material_classifier import MaterialClassifierModule, load_classifier

@@ -26,7 +26,7 @@ import torch
 from hydra.utils import instantiate
 from torch import nn
 
-from simulator.errors import InputError
+from common.errors import InputError
 
 from .checkpoint import (
     CHECKPOINT_HELP,

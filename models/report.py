@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.sequence import atomic_write_bytes
+from common.files import atomic_write_bytes
 
 from .metrics import ClassGrid
 

@@ -215,7 +215,7 @@ class VisualEffects:
     @staticmethod
     def from_dict(values: Mapping | None) -> VisualEffects:
         """Build from a (config) mapping; unknown keys raise, naming them and the allowed keys."""
-        from simulator.errors import switches_from_dict  # lazy: keeps torch out of render
+        from common.configs import switches_from_dict  # lazy: keeps torch out of render
 
         return switches_from_dict(VisualEffects, values, "visual effects")
 

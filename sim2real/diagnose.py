@@ -14,17 +14,10 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from simulator.errors import (
-    InputError,
-    check_bool,
-    check_choice,
-    check_device,
-    check_float,
-    check_int,
-    check_name,
-    check_output_dir,
-    report_user_errors,
-)
+from common.checks import check_bool, check_choice, check_device, check_float, check_int
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.paths import check_name, check_output_dir
 
 from .pipeline import run_diagnosis
 from .report import verdict

@@ -20,13 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from common.files import atomic_write_bytes
 from datasets.generation import render_frames, simulate_unit
 from datasets.plan import SimulationPlan, WorkUnit, plan_units
 from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
 from render.effects import IMAGE_EFFECT_ORDER, apply_image_effects
 from simulator.cloth.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
-from simulator.sequence import MeshSequence, atomic_write_bytes
+from simulator.sequence import MeshSequence
 
 __all__ = ["ClipSet", "diagnosis_spec", "prior_materials", "real_clips", "simulated_clips"]
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.sequence import atomic_write_bytes
+from common.files import atomic_write_bytes
 
 from .domains import ClipSet
 from .features import clip_features

@@ -240,7 +240,7 @@ def _run_jobs(jobs: list[SetJob], context: SetContext, n_jobs: int, progress: bo
         else:
             from joblib import delayed
 
-            from simulator.processes import run_in_workers
+            from common.processes import run_in_workers
 
             results = run_in_workers(n_jobs, (delayed(build_set)(j, context) for j in todo))
         for _, seconds in results:

@@ -20,14 +20,12 @@ import dataclasses
 import json
 from pathlib import Path
 
+from common.checks import check_int
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_dir
 from datasets.spec import DatasetSpec
-from simulator.errors import (
-    InputError,
-    check_int,
-    check_output_dir,
-    report_user_errors,
-)
-from simulator.sequence import atomic_write_bytes
 
 from .diagnosis import PIXEL_RUNGS, localise, rung_gaps
 from .domains import real_clips

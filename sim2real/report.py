@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from common.errors import InputError
+from common.files import atomic_write_bytes
 from models.report import markdown_table, write_json, write_text
-from simulator.errors import InputError
-from simulator.sequence import atomic_write_bytes
 
 __all__ = ["REPORT_INPUTS", "contact_sheet", "json_safe", "read_report", "verdict", "write_report"]
 

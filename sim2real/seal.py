@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.paths import check_output_dir
 from datasets.plan import SimulationPlan
 from datasets.spec import PRESETS, DatasetSpec, check_int
 from simulator.cloth.material import (
@@ -33,7 +36,6 @@ from simulator.cloth.material import (
     ClothMaterial,
     load_wang_material,
 )
-from simulator.errors import InputError, check_output_dir, report_user_errors
 
 from .candidates import Candidate, candidate_library
 from .open_set import OPEN_SET_EFFECTS, render_sealed_video

@@ -20,8 +20,11 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from common.checks import check_int
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.paths import check_output_dir
 from datasets.spec import PRESETS, DatasetSpec
-from simulator.errors import InputError, check_int, check_output_dir, report_user_errors
 
 from .candidates import candidate_library
 from .diagnosis import rung_gaps

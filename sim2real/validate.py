@@ -32,8 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.errors import InputError, check_int, check_output_dir, report_user_errors
-from simulator.sequence import atomic_write_bytes
+from common.checks import check_int
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_dir
 
 from .candidates import candidate_library
 from .detectability import detectable_at

@@ -18,12 +18,6 @@ Arrays are row-major ``(N, 3)``; positions in metres, SI units throughout. Only
 torch and numpy are imported here (no hydra / lightning / pyrender / cv2).
 """
 
-import os
-
-# Before anything loads OpenMP (torch, numba): waiting threads sleep instead of spinning, so a
-# process with several threads survives a busy CPU (see simulator.threads).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 from .errors import InputError, MaterialError
 from .integrators import (
     IntegratorBackwardEuler,

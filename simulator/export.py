@@ -12,8 +12,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from simulator.errors import InputError, check_output_dir, report_user_errors
-from simulator.sequence import MeshSequence, staged_folder
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import staged_folder
+from common.paths import check_output_dir
+from simulator.sequence import MeshSequence
 
 
 def export_sequence(sequence: MeshSequence, out_dir: Path, fmt: str, instance: int) -> list[Path]:

@@ -14,11 +14,14 @@ import dataclasses
 import numpy as np
 import torch
 
+from common.errors import user_error
+
 __all__ = ["MeshError", "TriMesh"]
 
 _DEGENERATE_AREA = 1e-12  # m², smallest rest triangle area accepted
 
 
+@user_error
 class MeshError(ValueError):
     """Raised for a mesh that the simulator cannot use (names the field at fault)."""
 

@@ -21,16 +21,16 @@ product, 20 logistic fits on (300, 512) features (the diagnosis's domain classif
 11 min instead of about 1 beside two other validation processes (2026-11-26).
 
 Where a process does take several threads (``--threads 2`` for a batched run, whose compiled
-kernels spread the instances over numba's OpenMP threads), ``import simulator`` sets
-``OMP_WAIT_POLICY=PASSIVE`` unless the environment already chose: idle OpenMP threads sleep
-instead of spinning. OpenMP reads it when it loads, so it reaches every process started from
-one that imported the simulator (generation workers, benchmark children), and a main process
-that imports the simulator before torch. Measured with ``thread_load_bench --backend kernels
---batch 8`` (2 cores, 2 threads in each of two processes): the loaded run slowed 9.9x with
-spinning threads, 1.4x with sleeping ones (fair: 2x); quiet batched throughput was unchanged
-(54 instances, 32.9 vs 32.5 s). On the torch path sleeping threads cost a quiet 2-thread run
-43 % (2.29 -> 3.28 s; every small op is a parallel region), which the default of one thread
-does not pay.
+kernels spread the instances over numba's OpenMP threads), importing any of the project's
+packages (through :mod:`common`) sets ``OMP_WAIT_POLICY=PASSIVE`` unless the environment
+already chose: idle OpenMP threads sleep instead of spinning. OpenMP reads it when it loads, so
+it reaches every process started from one that imported the project (generation workers,
+benchmark children), and a main process that imports the project before torch. Measured with
+``thread_load_bench --backend kernels --batch 8`` (2 cores, 2 threads in each of two
+processes): the loaded run slowed 9.9x with spinning threads, 1.4x with sleeping ones (fair:
+2x); quiet batched throughput was unchanged (54 instances, 32.9 vs 32.5 s). On the torch path
+sleeping threads cost a quiet 2-thread run 43 % (2.29 -> 3.28 s; every small op is a parallel
+region), which the default of one thread does not pay.
 """
 
 from __future__ import annotations

@@ -2,11 +2,10 @@
 
 import os
 
-import omegaconf  # noqa: F401  (loaded before the configs' resolvers are registered)
 import pytest
 import torch
 
-from simulator.errors import register_config_resolvers
+from common.configs import register_config_resolvers
 from simulator.threads import torch_threads
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")

@@ -14,7 +14,7 @@ import benchmarks.thesis.tissue_jobs as tissue_entry
 import sim2real.diagnose as diagnose_entry
 import simulator.cloth.simulate as simulate_entry
 import train as train_entry
-from simulator.errors import InputError
+from common.errors import InputError
 from tests.conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[1]

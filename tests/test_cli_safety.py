@@ -15,7 +15,8 @@ from hydra import compose, initialize_config_dir
 
 import sim2real.diagnose as diagnose_entry
 import simulator.cloth.simulate as simulate_entry
-from simulator.errors import INTERRUPTED, InputError
+from common.commands import INTERRUPTED
+from common.errors import InputError
 from tests.conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[1]

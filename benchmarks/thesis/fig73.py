@@ -12,8 +12,8 @@ import csv
 import io
 from pathlib import Path
 
+from common.files import atomic_write_bytes
 from simulator.cloth.sensitivity import FabricStudy, fabric_study
-from simulator.sequence import atomic_write_bytes
 
 
 def plot(study: FabricStudy, path: Path) -> None:

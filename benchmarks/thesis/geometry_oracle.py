@@ -31,10 +31,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from common.files import atomic_write_bytes
 from datasets.clip_dataset import ClothClipDataset, clip_tensor
 from datasets.manifest import SPLIT_PROTOCOLS, Manifest
 from datasets.spec import physics_key_of
-from simulator.sequence import MeshSequence, atomic_write_bytes
+from simulator.sequence import MeshSequence
 
 __all__ = [
     "clip_geometry", "clip_motion", "clip_pixels", "oracle_accuracy", "run_oracle", "write_report",

@@ -6,7 +6,7 @@ import csv
 import io
 from pathlib import Path
 
-from simulator.sequence import atomic_write_bytes
+from common.files import atomic_write_bytes
 
 __all__ = ["save_png", "write_csv"]
 

@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt
 
 from benchmarks.thesis.monocular_benchmark import PAPER_TABLE1, mono_table
 from benchmarks.thesis.outputs import save_png, write_csv
-from simulator.sequence import atomic_write_bytes
+from common.files import atomic_write_bytes
 
 
 def markdown(rows: list[dict]) -> str:

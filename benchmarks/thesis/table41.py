@@ -25,8 +25,8 @@ from benchmarks.thesis.ukf_experiments import (
     ukf_dropped_ball,
     ukf_table41,
 )
+from common.files import atomic_write_bytes
 from simulator.calibrate.ukf_body import INTEGRATORS
-from simulator.sequence import atomic_write_bytes
 from simulator.threads import torch_threads
 
 

@@ -10,9 +10,9 @@ import argparse
 import csv
 from pathlib import Path
 
+from common.files import atomic_write_bytes
 from simulator.cloth.material import nearest_class
 from simulator.cloth.sensitivity import THESIS_TABLE_7_1, FabricStudy, fabric_study
-from simulator.sequence import atomic_write_bytes
 
 
 def table_rows(study: FabricStudy) -> list[dict]:

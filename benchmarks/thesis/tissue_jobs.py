@@ -7,7 +7,7 @@ calls, so both entries give the same files.
 
 The job's fields are checked (type from the tool's ``run`` signature, range from
 ``_RANGES``) before anything is written: a bad value ends the command with one line
-``error: tissue_job.<field> must be ...`` (:mod:`simulator.errors`).
+``error: tissue_job.<field> must be ...`` (:mod:`common.commands`).
 """
 
 from __future__ import annotations
@@ -18,16 +18,12 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from simulator.errors import (
-    InputError,
-    check_choice,
-    check_float,
-    check_int,
-    check_node,
-    check_output_dir,
-    report_user_errors,
-)
-from simulator.sequence import atomic_write_bytes
+from common.checks import check_choice, check_float, check_int
+from common.commands import report_user_errors
+from common.configs import check_node
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_dir
 
 log = logging.getLogger(__name__)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from simulator.errors import switches_from_dict
+from common.configs import switches_from_dict
 
 __all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength"]
 

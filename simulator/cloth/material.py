@@ -42,9 +42,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.errors import InputError
 from simulator.energies.bending import BEND_SAMPLE_CURVATURES
 from simulator.energies.membrane import STRETCH_SAMPLE_STRAIN
-from simulator.errors import InputError, MaterialError
+from simulator.errors import MaterialError
 
 __all__ = [
     "BASIS_MATERIAL",

@@ -10,9 +10,9 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from common.errors import InputError
 from simulator.cloth.effects import PhysicsEffects
 from simulator.cloth.material import ClothMaterial
-from simulator.errors import InputError
 from simulator.forces import AirDamping
 from simulator.integrators import IntegratorBackwardEuler, SimulationDiverged, solve_static
 from simulator.kernels import BACKENDS, resolve_backend

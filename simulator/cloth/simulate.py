@@ -5,7 +5,7 @@
 and, with ``export=obj``, a frame series of the first instance.
 
 Every field is checked before anything is simulated: a bad value ends the command with one
-line ``error: <field> must be ...`` (:mod:`simulator.errors`), and nothing is written.
+line ``error: <field> must be ...`` (:mod:`common.commands`), and nothing is written.
 """
 
 from __future__ import annotations
@@ -17,21 +17,16 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from common.checks import check_device, check_float, check_int
+from common.commands import report_user_errors
+from common.configs import check_node, config_errors
+from common.errors import InputError
+from common.files import staged_folder
+from common.paths import check_output_dir, check_output_file
 from simulator.cloth.effects import PhysicsEffects
 from simulator.cloth.material import ClothMaterial, check_class_ids, class_summary
 from simulator.cloth.rollout import check_recording_memory, simulate
-from simulator.errors import (
-    InputError,
-    check_device,
-    check_float,
-    check_int,
-    check_node,
-    check_output_dir,
-    check_output_file,
-    config_errors,
-    report_user_errors,
-)
-from simulator.sequence import MeshSequence, staged_folder
+from simulator.sequence import MeshSequence
 from simulator.threads import check_threads, use_process_threads
 
 log = logging.getLogger(__name__)

@@ -24,11 +24,11 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 import datasets.clone as clone
+from common.errors import InputError
 from datasets.clip_dataset import ClothClipDataset
 from datasets.preview import LABEL_WIDTH, label_height
 from models.material_classifier import MaterialClassifierModule
 from simulator.cloth.material import CLASS_COUNT, multipliers_from_class
-from simulator.errors import InputError
 from tests.conftest import subprocess_env
 
 from .conftest import write_mp4

@@ -10,8 +10,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import datasets.demo as demo
+from common.errors import InputError
 from datasets.preview import LABEL_WIDTH, label_height
-from simulator.errors import InputError
 from simulator.sequence import MeshSequence
 from tests.conftest import subprocess_env
 

@@ -6,8 +6,8 @@ import os
 import numpy as np
 import pytest
 
+from common.errors import InputError
 from datasets.real_video import RealVideoDataset, footage_files, read_labels
-from simulator.errors import InputError
 
 from .conftest import write_mp4
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from common.errors import InputError
 from datasets.real_video import RealVideoDataset, SkippedVideo
-from simulator.errors import InputError
 
 from .conftest import write_mp4
 

@@ -17,6 +17,7 @@ import yaml
 
 import sim2real.pipeline as pipeline
 import sim2real.shrink as shrink
+from common.errors import InputError
 from models.checkpoint import (
     NET_TARGETS,
     read_checkpoint,
@@ -26,7 +27,6 @@ from models.checkpoint import (
 from models.components.frame_encoder import FrameEncoder
 from models.components.video_nets import load_encoder_state
 from models.material_classifier import init_weights_from, load_classifier
-from simulator.errors import InputError
 from tests.models.conftest import TINY_NET, write_checkpoint
 
 

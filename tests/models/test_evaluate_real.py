@@ -13,11 +13,11 @@ import torch
 from hydra import compose, initialize_config_dir
 
 import models.evaluate as evaluate
+from common.errors import InputError
 from datasets.manifest import legacy_class_grid
 from models.metrics import ClassGrid
 from models.report import wind_label
 from models.scores import CORRELATED_SCORES
-from simulator.errors import InputError
 
 from .conftest import FABRICS, write_checkpoint
 

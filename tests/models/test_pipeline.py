@@ -11,9 +11,9 @@ from hydra.errors import MissingConfigException
 from hydra.utils import instantiate
 
 import train as train_entry
+from common.errors import InputError
 from models.evaluate import run as evaluate_run
 from models.material_classifier import load_classifier
-from simulator.errors import InputError
 from tests.models.conftest import write_checkpoint
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")

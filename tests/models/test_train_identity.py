@@ -10,7 +10,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import train as train_entry
-from simulator.errors import InputError
+from common.errors import InputError
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
 FAST = [

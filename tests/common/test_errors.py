@@ -1,4 +1,4 @@
-"""simulator.errors: field checks name the field and the allowed values; entry points print
+"""common: field checks name the field and the allowed values; entry points print
 one line for a user error and keep the traceback for a programming error."""
 
 import math
@@ -7,19 +7,18 @@ import pytest
 import torch
 from hydra.errors import InstantiationException
 
-from simulator.cloth.material import MaterialError, check_class_ids
-from simulator.errors import (
-    InputError,
+from common.checks import (
     check_bool,
     check_choice,
     check_device,
     check_float,
     check_int,
-    check_node,
-    config_errors,
-    report_user_errors,
     require_cuda,
 )
+from common.commands import report_user_errors
+from common.configs import check_node, config_errors
+from common.errors import InputError
+from simulator.cloth.material import MaterialError, check_class_ids
 
 
 def test_check_int_accepts_integers_and_refuses_the_rest():

@@ -1,5 +1,5 @@
 """Names stay single path components, outputs are checked before the work, Ctrl-C and
-file-system errors end a command in one line (simulator.errors, simulator.sequence; issue 61)."""
+file-system errors end a command in one line (common.paths, common.files, common.commands)."""
 
 import errno
 import os
@@ -10,18 +10,13 @@ import numpy as np
 import pytest
 
 import simulator.sequence as sequence_module
-from simulator.errors import (
-    INTERRUPTED,
-    InputError,
-    check_name,
-    check_output_dir,
-    check_output_file,
-    check_targets,
-    report_user_errors,
-    resolve_inside,
-)
+from common.commands import INTERRUPTED, report_user_errors
+from common.configs import check_targets
+from common.errors import InputError
+from common.files import staged_folder
+from common.paths import check_name, check_output_dir, check_output_file, resolve_inside
 from simulator.export import main as export_main
-from simulator.sequence import MeshSequence, staged_folder
+from simulator.sequence import MeshSequence
 
 
 @pytest.mark.parametrize("good", ["run", "wind-L1-grid-full-s0-cnn_lstm", "a.b", 7])
