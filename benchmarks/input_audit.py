@@ -184,7 +184,7 @@ def cases(base: Path) -> list[Case]:
         out += [
             Case("checkpoint", f"evaluate: {kind}", ["-m", "models.evaluate", f"ckpt_path={bad}",
                  f"data_dir={data}"], setup),
-            Case("checkpoint", f"clone: {kind}", ["-m", "datasets.clone", f"run={bad}",
+            Case("checkpoint", f"clone: {kind}", ["-m", "apps.clone", f"run={bad}",
                  f"data_dir={data}", f"video={base}/real/f0.mp4"], setup),
             Case("checkpoint", f"diagnose: {kind}", ["-m", "sim2real.diagnose", f"run={bad}",
                  f"data_dir={data}", "real_dir={scratch}/real", "out_dir={scratch}/o",
@@ -230,7 +230,7 @@ def cases(base: Path) -> list[Case]:
         ("tissue out_dir is a file", ["-m", "benchmarks.thesis.tissue_jobs", "tissue_job=ukf",
          f"out_dir={afile}"]),
         ("export out_dir is a file", ["-m", "simulator.export", str(base / "seq.npz"), afile]),
-        ("demo out_dir is a file", ["-m", "datasets.demo", f"out_dir={afile}"]),
+        ("demo out_dir is a file", ["-m", "apps.demo", f"out_dir={afile}"]),
         ("evaluate out_dir is a file", ["-m", "models.evaluate", f"ckpt_path={ckpt}",
          f"data_dir={data}", f"out_dir={afile}"]),
         ("diagnose cache_dir is a file", ["-m", "sim2real.diagnose", f"run={ckpt}",
@@ -238,7 +238,7 @@ def cases(base: Path) -> list[Case]:
         ("preview --out is a file", ["-m", "datasets.preview", str(data), "--out", afile]),
         ("seal --out below a file", ["-m", "sim2real.seal", "--seed", "1", "--out",
          f"{afile}/s", "--data-dir", str(data)]),
-        ("clone out_dir is a file", ["-m", "datasets.clone", f"run={ckpt}", f"data_dir={data}",
+        ("clone out_dir is a file", ["-m", "apps.clone", f"run={ckpt}", f"data_dir={data}",
          f"video={base}/real/f0.mp4", f"out_dir={afile}"]),
     ]  # fmt: skip
     out += [Case("destination", name, args) for name, args in destinations]
@@ -290,7 +290,7 @@ def cases(base: Path) -> list[Case]:
              b"video,stiffness,density\nf\x000.mp4,1,1\n")(s))),
         Case("input", "simulate record_time=1e7", ["-m", "simulator.cloth.simulate",
              "record_time=1e7", "out_file={scratch}/s.npz"]),
-        Case("input", "demo record_time=1e7", ["-m", "datasets.demo", "record_time=1e7",
+        Case("input", "demo record_time=1e7", ["-m", "apps.demo", "record_time=1e7",
              "out_dir={scratch}/d"]),
         Case("input", "evaluate: bad checkpoint and missing data", ["-m", "models.evaluate",
              "ckpt_path={scratch}/none.ckpt", "data_dir={scratch}/none"]),

@@ -17,6 +17,7 @@ __all__ = [
     "check_device",
     "check_float",
     "check_int",
+    "check_threads",
     "require_cuda",
 ]
 
@@ -106,6 +107,15 @@ def require_cuda(request: str, alternative: str) -> None:
             f"{request} asks for CUDA, but this machine has no CUDA device "
             f"(torch.cuda.is_available() is false); {alternative}"
         )
+
+
+def check_threads(value: Any, name: str = "threads") -> int | None:
+    """``value`` as an int >= 1, or ``None`` (leave torch's count alone)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise InputError(f"{name} must be an integer >= 1 or null (torch's default), got {value!r}")
+    return value
 
 
 def _range_text(low, high, low_open: bool = False) -> str:

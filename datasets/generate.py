@@ -73,7 +73,7 @@ def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> Da
         cfg: A config with the fields of ``configs/generate.yaml`` (``sims_per_unit`` may
             be left out: 0, all classes in one rollout; ``material_set`` too: ``wang54``).
         preset: Use this size preset instead of the config's ``preset`` node
-            (:mod:`datasets.demo` derives its own from ``fps`` and ``record_time``).
+            (:mod:`apps.demo` derives its own from ``fps`` and ``record_time``).
 
     Raises:
         InputError: naming the first bad field and its allowed values.

@@ -102,12 +102,8 @@ def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) ->
         "mode": "max",  # unused without a monitor; tells its state key from last.ckpt's
     }  # fmt: skip
     OmegaConf.update(cfg, "callbacks.epoch_snapshots", snapshots, force_add=True)
-    try:
-        from train import train
-    except ImportError:
-        raise ImportError(
-            "sim2real.shrink runs from the repository root (it imports train.py)"
-        ) from None
+    from models.training import train
+
     train(cfg)
     best = out / "checkpoints" / "best.ckpt"
     if not best.is_file():

@@ -42,10 +42,11 @@ from collections.abc import Iterator
 
 import torch
 
+from common.checks import check_threads
+
 __all__ = [
     "SIM_THREADS",
     "THREAD_ENV_VARS",
-    "check_threads",
     "limit_openblas_threads",
     "torch_threads",
     "use_process_threads",
@@ -56,15 +57,6 @@ SIM_THREADS = 1
 
 THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 """Thread-pool sizes that child processes (joblib workers) read when they start."""
-
-
-def check_threads(value, name: str = "threads") -> int | None:
-    """``value`` as an int >= 1, or ``None`` (leave torch's count alone); else a ValueError."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1 or null (torch's default), got {value!r}")
-    return value
 
 
 _OPENBLAS_SETTERS = (

@@ -11,9 +11,9 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
 import benchmarks.thesis.tissue_jobs as tissue_entry
+import models.training as train_entry
 import sim2real.diagnose as diagnose_entry
 import simulator.cloth.simulate as simulate_entry
-import train as train_entry
 from common.errors import InputError
 from tests.conftest import subprocess_env
 

@@ -1,7 +1,7 @@
 """Every argparse command prints its help and exits on ``--help``, before doing any work.
 
-The Hydra entry points (simulator.cloth.simulate, datasets.generate, datasets.demo,
-datasets.clone, train.py, benchmarks.thesis.tissue_jobs, sim2real.diagnose, models.evaluate) get
+The Hydra entry points (simulator.cloth.simulate, datasets.generate, apps.demo,
+apps.clone, train.py, benchmarks.thesis.tissue_jobs, sim2real.diagnose, models.evaluate) get
 ``--help`` from Hydra itself.
 """
 
@@ -13,7 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 HYDRA = {
-    "simulator.cloth.simulate", "datasets.generate", "datasets.demo", "datasets.clone",
+    "simulator.cloth.simulate", "datasets.generate", "apps.demo", "apps.clone",
     "benchmarks.thesis.tissue_jobs", "sim2real.diagnose", "models.evaluate",
 }  # fmt: skip
 
@@ -48,7 +48,8 @@ def test_help_prints_usage_and_exits(name, monkeypatch, capsys, tmp_path):
 def test_every_runnable_module_is_listed():
     runnable = {
         ".".join(path.relative_to(ROOT).with_suffix("").parts)
-        for package in ("benchmarks", "datasets", "models", "render", "sim2real", "simulator")
+        for package in ("apps", "benchmarks", "datasets", "models", "render", "sim2real",
+                        "simulator")
         for path in (ROOT / package).rglob("*.py")
         if 'if __name__ == "__main__"' in path.read_text()
     }

@@ -183,8 +183,8 @@ def test_power_preview_and_validate_refuse_bad_input_in_one_line(tmp_path, capsy
     ],
 )  # fmt: skip
 def test_every_destination_is_checked_before_the_work(config, overrides, field, tmp_path):
+    import apps.demo as demo_entry
     import benchmarks.thesis.tissue_jobs as tissue_entry
-    import datasets.demo as demo_entry
     import datasets.generate as generate_entry
 
     run = {"generate": generate_entry.run, "demo": demo_entry.run, "tissue": tissue_entry.run,
@@ -198,7 +198,7 @@ def test_every_destination_is_checked_before_the_work(config, overrides, field, 
 
 
 def test_demo_refuses_a_recording_longer_than_memory_allows(tmp_path):
-    import datasets.demo as demo_entry
+    import apps.demo as demo_entry
 
     cfg = _compose("demo", "record_time=1e7", f"out_dir={tmp_path}/d", "paths.output_dir=/x")
     with pytest.raises(InputError, match=r"^record_time must be at most \d+ s here"):

@@ -63,3 +63,19 @@ def test_only_entry_points_under_simulator_import_hydra_and_none_matplotlib():
     plots = {f for f, mods in found.items() if "matplotlib" in mods}
     assert hydra <= entry_points, hydra - entry_points
     assert not plots, plots
+
+
+def test_no_package_imports_the_train_script():
+    """``train.py`` is a command line only: what it runs lives in :mod:`models.training`."""
+    import re
+
+    pattern = re.compile(r"^\s*(?:import train\b|from train import)", re.M)
+    packages = ("common", "simulator", "render", "datasets", "models", "apps", "sim2real",
+                "benchmarks")  # fmt: skip
+    offenders = [
+        str(path.relative_to(ROOT))
+        for package in packages
+        for path in (ROOT / package).rglob("*.py")
+        if pattern.search(path.read_text())
+    ]
+    assert offenders == []

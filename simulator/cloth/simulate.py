@@ -17,7 +17,7 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from common.checks import check_device, check_float, check_int
+from common.checks import check_device, check_float, check_int, check_threads
 from common.commands import report_user_errors
 from common.configs import check_node, config_errors
 from common.errors import InputError
@@ -27,7 +27,7 @@ from simulator.cloth.effects import PhysicsEffects
 from simulator.cloth.material import ClothMaterial, check_class_ids, class_summary
 from simulator.cloth.rollout import check_recording_memory, simulate
 from simulator.sequence import MeshSequence
-from simulator.threads import check_threads, use_process_threads
+from simulator.threads import use_process_threads
 
 log = logging.getLogger(__name__)
 

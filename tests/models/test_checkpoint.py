@@ -92,7 +92,7 @@ def test_init_from_and_encoder_checkpoint_refuse_a_pickled_payload(tmp_path):
 
 
 def test_diagnosis_and_clone_refuse_the_checkpoint_naming_run(hostile):
-    from datasets.clone import load_checked_classifier
+    from apps.clone import load_checked_classifier
     from datasets.runs import TrainedRun
 
     path, marker = hostile
@@ -114,7 +114,7 @@ def test_evaluate_refuses_the_checkpoint_before_reading_any_data(hostile, tmp_pa
 
 
 def test_train_refuses_a_hostile_resume_or_init_from(tmp_path, model_dataset):
-    import train as train_entry
+    import models.training as train_entry
     from tests.models.test_pipeline import _train_cfg
 
     marker = tmp_path / "payload-ran"

@@ -10,7 +10,7 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import MissingConfigException
 from hydra.utils import instantiate
 
-import train as train_entry
+import models.training as train_entry
 from common.errors import InputError
 from models.evaluate import run as evaluate_run
 from models.material_classifier import load_classifier

@@ -1,4 +1,4 @@
-"""train.py: a run folder belongs to one dataset, and early stopping says why training ended."""
+"""models.training: a run folder belongs to one dataset; early stopping says why it stopped."""
 
 import hashlib
 import json
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-import train as train_entry
+import models.training as train_entry
 from common.errors import InputError
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
@@ -42,7 +42,7 @@ def test_early_stopping_says_when_and_why_training_ended(model_dataset, tmp_path
     cfg = _train_cfg(model_dataset, run, "trainer.max_epochs=4",
                      "callbacks.early_stopping.patience=1",
                      "callbacks.early_stopping.min_delta=2.0")  # fmt: skip
-    with caplog.at_level(logging.INFO, logger="train"):
+    with caplog.at_level(logging.INFO, logger="models.training"):
         train_entry.train(cfg)
     (message,) = [r.getMessage() for r in caplog.records if "early stopping" in r.getMessage()]
     assert message.startswith(
@@ -81,7 +81,7 @@ def test_run_folder_refuses_a_different_dataset(model_dataset, tmp_path, caplog)
     # The same bytes in another folder (a moved dataset) are the same run, with a warning.
     moved = tmp_path / "moved"
     shutil.copytree(model_dataset, moved)
-    with caplog.at_level(logging.WARNING, logger="train"):
+    with caplog.at_level(logging.WARNING, logger="models.training"):
         train_entry.train(_train_cfg(moved, run, "trainer.max_epochs=1"))
     assert any("its dataset moved" in r.getMessage() for r in caplog.records)
     assert _record(run) == [{"dir": str(moved.resolve()), "manifest_sha256": _sha(moved)}]
@@ -89,7 +89,7 @@ def test_run_folder_refuses_a_different_dataset(model_dataset, tmp_path, caplog)
     # A run folder from before the record existed: adopted loudly, then checked like any.
     (run / train_entry.DATASET_RECORD).unlink()
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="train"):
+    with caplog.at_level(logging.WARNING, logger="models.training"):
         train_entry.train(_train_cfg(model_dataset, run, "trainer.max_epochs=1"))
     assert any("has checkpoints but no dataset.json" in r.getMessage() for r in caplog.records)
     assert _record(run) == recorded

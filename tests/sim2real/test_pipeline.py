@@ -334,7 +334,7 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    import train as train_entry
+    import models.training as train_entry
     from datasets.generation import generate_dataset
     from sim2real.shrink import shrink
 

@@ -5,7 +5,8 @@ import os
 import pytest
 import torch
 
-from simulator.threads import THREAD_ENV_VARS, check_threads, torch_threads, use_process_threads
+from common.checks import check_threads
+from simulator.threads import THREAD_ENV_VARS, torch_threads, use_process_threads
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])

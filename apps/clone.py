@@ -1,6 +1,6 @@
 """Material cloning (thesis 7.7.3, Fig. 7.9): predict a video's cloth class, then show it draped.
 
-``python -m datasets.clone video=<file or folder> run=<training run or checkpoint>``
+``python -m apps.clone video=<file or folder> run=<training run or checkpoint>``
 (configs/clone.yaml) recovers the material class of the cloth in a video with a trained
 classifier and "clones" it onto another piece of cloth: a square cloth draped over the arm
 scene's bending arm (:class:`simulator.cloth.scenes.ScenarioArmBend`; ``motion=wind`` shows the
@@ -67,24 +67,16 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from common.checks import check_device, check_float, check_int
+from common.checks import check_device, check_float, check_int, check_threads
 from common.commands import report_user_errors
 from common.configs import config_errors
 from common.errors import InputError
 from common.paths import check_output_dir
-from models.evaluate import check_class_count, module_grid, predict
-from models.material_classifier import MaterialClassifierModule, load_classifier
-from models.metrics import ClassGrid
-from models.scores import material_scores
-from simulator.cloth.material import WANG54, MaterialSet
-from simulator.cloth.rollout import check_recording_memory
-from simulator.threads import check_threads, use_process_threads
-
-from .generate import spec_from_config
-from .generation import render_frames, simulate_unit
-from .manifest import write_json
-from .plan import WorkUnit, plan_units
-from .preview import (
+from datasets.generate import spec_from_config
+from datasets.generation import render_frames, simulate_unit
+from datasets.manifest import write_json
+from datasets.plan import WorkUnit, plan_units
+from datasets.preview import (
     LABEL_WIDTH,
     class_lines,
     draw_label,
@@ -96,9 +88,22 @@ from .preview import (
     write_mp4,
     write_png,
 )
-from .real_video import IMAGE_SUFFIXES, VIDEO_SUFFIXES, LabelRow, RealVideoDataset, clip_starts
-from .runs import RUN_HELP, TrainedRun, find_run
-from .spec import DatasetSpec, SizePreset
+from datasets.real_video import (
+    IMAGE_SUFFIXES,
+    VIDEO_SUFFIXES,
+    LabelRow,
+    RealVideoDataset,
+    clip_starts,
+)
+from datasets.runs import RUN_HELP, TrainedRun, find_run
+from datasets.spec import DatasetSpec, SizePreset
+from models.evaluate import check_class_count, module_grid, predict
+from models.material_classifier import MaterialClassifierModule, load_classifier
+from models.metrics import ClassGrid
+from models.scores import material_scores
+from simulator.cloth.material import WANG54, MaterialSet
+from simulator.cloth.rollout import check_recording_memory
+from simulator.threads import use_process_threads
 
 __all__ = [
     "COMPARISON_RULE", "CloneOutputs", "Prediction", "TrainedRun", "VideoClips", "clone_sheet",
@@ -122,7 +127,7 @@ COMPARISON_RULE = comparison_rule()
 holds the rule of the run's own material set."""
 TOP_COUNT = 5
 _RENDER_STREAM = 4
-"""Random stream of the renderer's effects (``[seed, stream]``), as in :mod:`datasets.demo`."""
+"""Random stream of the renderer's effects (``[seed, stream]``), as in :mod:`apps.demo`."""
 _GAP = 4  # px of white between the video's tiles
 _ACCENT = (255, 170, 0)  # RGB outline of the predicted class's label
 _NAME_CHARS = 20  # characters of the video's name that fit a label line

@@ -1,4 +1,4 @@
-"""datasets.clone (material cloning) end to end on a tiny trained run, and its refusals.
+"""apps.clone (material cloning) end to end on a tiny trained run, and its refusals.
 
 The run is trained in the test (one epoch on the tiny wind dataset, a narrow CNN+LSTM); the
 input video is two of that dataset's rendered clips back to back (8 frames at 15 fps, two
@@ -23,15 +23,14 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-import datasets.clone as clone
+import apps.clone as clone
 from common.errors import InputError
 from datasets.clip_dataset import ClothClipDataset
 from datasets.preview import LABEL_WIDTH, label_height
 from models.material_classifier import MaterialClassifierModule
 from simulator.cloth.material import CLASS_COUNT, multipliers_from_class
 from tests.conftest import subprocess_env
-
-from .conftest import write_mp4
+from tests.datasets.conftest import write_mp4
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = str(ROOT / "configs")
@@ -53,7 +52,7 @@ def _compose(*overrides):
 @pytest.fixture(scope="module")
 def trained(tiny_dataset, tmp_path_factory):
     """A run trained for one epoch on the tiny dataset, its config saved as Hydra saves it."""
-    import train as train_entry
+    import models.training as train_entry
 
     run = tmp_path_factory.mktemp("clone") / "logs" / "train" / "tiny"
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
@@ -314,7 +313,7 @@ def test_video_and_run_are_required(tmp_path):
 def test_the_command_prints_one_line_and_exits_2(trained, tmp_path):
     env = subprocess_env()
     done = subprocess.run(
-        [sys.executable, "-m", "datasets.clone", f"video={tmp_path}/none.mp4", f"run={trained}",
+        [sys.executable, "-m", "apps.clone", f"video={tmp_path}/none.mp4", f"run={trained}",
          f"paths.root_dir={tmp_path}"],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
     )  # fmt: skip

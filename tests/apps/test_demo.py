@@ -1,4 +1,4 @@
-"""datasets.demo (the main job) end to end on a tiny setting, and its checks of bad fields."""
+"""apps.demo (the main job) end to end on a tiny setting, and its checks of bad fields."""
 
 import subprocess
 import sys
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-import datasets.demo as demo
+import apps.demo as demo
 from common.errors import InputError
 from datasets.preview import LABEL_WIDTH, label_height
 from simulator.sequence import MeshSequence
@@ -99,7 +99,7 @@ def test_bad_fields_are_refused_before_anything_runs(override, message, tmp_path
 def test_the_command_prints_one_line_for_a_bad_field(tmp_path):
     env = subprocess_env()
     done = subprocess.run(
-        [sys.executable, "-m", "datasets.demo", "classes=[1.7]", f"paths.root_dir={tmp_path}"],
+        [sys.executable, "-m", "apps.demo", "classes=[1.7]", f"paths.root_dir={tmp_path}"],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert done.returncode == 2, done.stderr

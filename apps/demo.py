@@ -1,6 +1,6 @@
 """The main job (configs/demo.yaml): simulate a few classes, render them, and show them.
 
-``python -m datasets.demo`` simulates three classes that span the stretch x bend grid in the
+``python -m apps.demo`` simulates three classes that span the stretch x bend grid in the
 wind scene on the coarsest mesh, renders every instance the way dataset generation does
 (:func:`datasets.generation.simulate_unit` and :func:`~datasets.generation.render_frames`:
 same textures, backgrounds, camera and solver settings) and writes into the run folder
@@ -31,19 +31,15 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
-from common.checks import check_float, check_int
+from common.checks import check_float, check_int, check_threads
 from common.commands import report_user_errors
 from common.configs import config_errors
 from common.errors import InputError
 from common.paths import check_output_dir
-from simulator.cloth.material import class_summary
-from simulator.cloth.rollout import check_recording_memory
-from simulator.threads import check_threads, use_process_threads
-
-from .generate import spec_from_config
-from .generation import render_frames, simulate_unit
-from .plan import WorkUnit, plan_units
-from .preview import (
+from datasets.generate import spec_from_config
+from datasets.generation import render_frames, simulate_unit
+from datasets.plan import WorkUnit, plan_units
+from datasets.preview import (
     class_lines,
     draw_label,
     frame_strip,
@@ -54,7 +50,10 @@ from .preview import (
     write_mp4,
     write_png,
 )
-from .spec import DatasetSpec, SizePreset
+from datasets.spec import DatasetSpec, SizePreset
+from simulator.cloth.material import class_summary
+from simulator.cloth.rollout import check_recording_memory
+from simulator.threads import use_process_threads
 
 __all__ = ["VIDEO_COLUMNS", "DemoOutputs", "class_sheet", "class_video", "run"]
 
