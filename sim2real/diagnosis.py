@@ -82,134 +82,56 @@ log = logging.getLogger(__name__)
 PIXEL_RUNGS = ("pixel", "motion")
 
 OPEN_SET_MIN_CLOSURE = 0.6
-"""A candidate must close at least this share of the floor-corrected gap (classifier
-closure over the scored rungs, :data:`GAP_WEIGHTED`), and beat the chance closure of a fresh
-nominal draw S' by :data:`OPEN_SET_MARGIN`, to be named the cause; else the answer is
-"unexplained residual". On the development sealed sets (seeds 3000-3010, never used in the
-validation) planted library effects closed 0.60-1.0 at their fitted strength, a fresh
-nominal draw -0.65-0.11.
-It was 0.5 ("most of the gap") up to blind round 10, where two of four out-of-library
-effects were named after a look-alike that closed 0.57 (rolling shutter -> frame rate,
-kernel 0.84) and, as a coalition of three, 0.69 (barrel distortion -> defocus blur, motion
-blur and lighting variation). Recomputed on the 86 stored reports of rounds 8-10 (the
-single and coalition decisions need only the stored closures), 0.6 names none of the 12
-out-of-library effects (0.5: three) and leaves one correctly named library effect
-unexplained (sensor noise 0.56, 17016; it would now start a stacked fit). In-sample: blind
-round 11 is its test."""
+"""A candidate must close at least this share of the floor-corrected classifier gap, and beat
+a fresh nominal draw S' by :data:`OPEN_SET_MARGIN`, to be named the cause; else the answer is
+"unexplained residual" (docs/design/sim2real-open-set.md)."""
 
 OPEN_SET_MARGIN = 0.15
 
 KERNEL_MIN_CLOSURE = OPEN_SET_MIN_CLOSURE
-"""A named cause must also close most of the kernel distance (the floor-corrected MMD², mean
-over the scored rungs where it lies above its floor, :func:`kernel_closure`).
-
-The classifier closure sees only the few directions that tell S from R; a look-alike that
-moves those directions while adding differences elsewhere (a linear classifier is blind to,
-say, a change of spread) closes much of the classifier gap and little of the distance. The
-true effect at its fitted strength closes both. On the first two blind rounds' sealed sets
-(seeds 7000-7029, 8000-8029, where the rule was chosen) the library effects named
-correctly closed 0.93-1.0 of the kernel distance on 33 of 35 sets (internal damping 7004:
-0.48; specular 7023, named through its coalition with motion blur: 0.09 alone), while the
-five out-of-library effects that were attributed to a look-alike (vignetting, rolling
-shutter, tone curve) closed -0.53 to 0.44. The threshold is the classifier's own,
-:data:`OPEN_SET_MIN_CLOSURE`: "most of the gap" by both statistics. It stayed at 0.5 when the
-classifier's rose to 0.6 after round 10, and in blind round 14 a rolling shutter 0.72 (21000,
-out of library) was named motion blur at the top of its range with a kernel closure of 0.505.
-Decided again over rounds 12-14's stored reports (in-sample), 0.6 changed that answer (to
-unexplained) and no other; the 50 correct names there with a kernel rung closed 0.90-1.0.
-
-Both must be closed at one strength, but not necessarily at the classifier's best one: any
-strength inside the candidate's interval whose classifier closure also reaches the threshold
-may confirm it (:func:`kernel_strengths`). In blind round 8 a true lighting variation 0.35
-(set 14014) closed 0.83 of the classifier gap at 0.32 and 0.84 at the grid's top, 0.6 (its
-interval spanned the whole grid); the kernel distance was closed at 0.32 (1.0) and widened at
-0.6 (-1.0), so the true effect was reported as a look-alike."""
+"""A named cause must also close this share of the kernel distance (:func:`kernel_closure`),
+at a strength inside its interval (:func:`kernel_strengths`): a look-alike moves the few
+directions the classifier sees but not the whole distribution
+(docs/design/sim2real-kernel-check.md)."""
 
 NEUTRAL_RULE = (
     "a candidate whose strength interval holds its neutral value is not named: the data "
     "cannot tell it from its absence"
 )
 """Why a top candidate may close the gap and still not be named (:attr:`CandidateResult.
-holds_neutral`), alone, as a coalition's leader or under a stacked partner.
-
-A cause must be told from its own absence. Where the neutral strength lies inside a
-candidate's range (a scene field's nominal value, a frame-rate ratio of 1), an interval that
-holds it says that the classifier closures at the fitted strength and at "no change" cannot
-be told apart: whatever the candidate closes, it closes by the other changes its grid makes
-around the fit (or by chance), not by the effect. In blind round 11 wind-yaw jitter was named
-twice this way, each time wrongly: on internal damping 0.0038 (18004, closure 1.0 at 2.5°,
-interval 0-22.8° around the nominal 15°) and, through a coalition, on motion blur 0.45 (18015,
-interval 14.7-30.2°). Decided again over the stored reports of rounds 8-11 (in-sample), the
-rule changed those two answers (to "unexplained") and no other. Blind test: round 12."""
+holds_neutral`): an interval that holds "no change" cannot tell the effect from its absence
+(docs/design/sim2real-neutral-rule.md)."""
 
 SATURATED_TIE = (
     "candidates with equal classifier closures are ordered first by whether they can be told "
     "from their absence (NEUTRAL_RULE), then by their kernel distance to R (mean MMD² over "
     "the scored rungs at the best strength, nearest first)"
 )
-"""How :func:`rank_candidates` orders a tie.
-
-The classifier closure is clipped at 1: every candidate that brings S to within R's floor
-closes "all" of the gap, and a weak gap (a classifier barely above its floor) is closed that
-way by several of them at once. The classifier then cannot rank them, and the order used to
-be the library's (physics before visual): in blind round 12 a specular roughness 0.146
-(19022, a pixel gap at p = 0.03) tied at 1.0 with air damping and lighting variation and
-air damping was named. The kernel distance is the second, independent statistic of every
-comparison; it orders the tie (there: specular 0.0043, air damping 0.0061, lighting
-variation 0.0096; S itself 0.0068). Decided again over round 12's stored reports, the rule
-changed that set's answer (to specular) and no other: 19022 was the only tie at the top.
-
-A tied candidate whose interval holds its neutral value (:data:`NEUTRAL_RULE`) closes the gap
-no better than its own absence, so it goes after those that can be told from theirs: in blind
-round 14 an air damping 0.064 (21005, one weak layer) tied at 1.0 with wind-yaw jitter, whose
-interval spanned its whole range around the nominal; the jitter was nearer by the kernel
-distance, led, and, unnamed by the rule, left the gap unexplained. Decided again over rounds
-12-14's stored reports (in-sample), this changed 21005's answer (to air damping) and, among
-the sets without any gap, the order of candidates that all close nothing."""
+"""How :func:`rank_candidates` orders a tie of clipped classifier closures: the kernel
+distance is the second, independent statistic of every comparison
+(docs/design/sim2real-ties.md)."""
 
 GAP_WEIGHTED = (
     "a candidate's score is its classifier closure on each scored rung, weighted by the "
     "classifier gap that rung carries (S vs R's AUC above its floor)"
 )
-"""How :func:`candidate_result` combines the scored rungs (:meth:`ReferenceScores.weights`).
-
-The score is then the share of the whole classifier gap a candidate closes, not the mean of
-its shares per rung. Up to blind round 13 it was the plain mean, and a rung that barely shows
-the gap counted as much as one where S and R are told apart perfectly: a candidate that
-closes the weak rung by chance, and nothing of the strong one, scored 50 %. In round 13 a
-motion blur 0.40 (20019: motion gap 0.51, enc.block3 0.02) was named wind-yaw jitter, which
-closed enc.block3 and widened the motion gap (0.56 against motion blur's 0.32); two tone
-curves (20000, 20002: pixel gap 1.0, enc.block2 0.07) had their residual placed in "physics
-or scene" by the same jitter's 50 % on enc.block2 alone. Decided again over rounds 12 and
-13's stored reports with the scores so weighted (in-sample; the strength intervals kept as
-stored), 20019 was named motion blur and no other answer changed; blind test: round 14."""
+"""How :func:`candidate_result` combines the scored rungs (:meth:`ReferenceScores.weights`):
+the score is the share of the whole classifier gap closed, so a rung that barely shows the
+gap counts little (docs/design/sim2real-closure-score.md)."""
 
 CONFUSABLE_WITHIN = 0.1
 """Candidates whose scores lie within this of the best are reported as confusable with it."""
 
 RESIDUAL_STAGE_MIN_CLOSURE = 0.10
 """Least share of the gap that a stage's best candidate must close for that stage to place an
-unexplained residual (:func:`stage_of_residual`); below it the closures are noise and the rung
-pattern decides. First chosen in-sample on the stored reports of four blind rounds (120
-sets) as 0.05: stage correct on 95, 94 and 92 sets with 0, 0.05 and 0.1, against 89 with the
-rung pattern alone. Raised to 0.10 after blind rounds 17 and 18 each placed an image effect
-by a physics candidate's 6 % (barrel distortion 24002: aero lift; tone curve 25000): with the
-later rules, over the 183 stored sets of rounds 12-18 (in-sample) 0.07-0.2 all give 168
-right against 167 at 0.05: those two change to right, a wind-yaw jitter 33 deg (25013, placed
-by a scene candidate's 5-10 %) to wrong. A fresh nominal draw (S', no effect at all) closes
-5 % or more of the gap in 10 % of those sets and 10 % or more in 5 %. Blind test: round 19."""
+unexplained residual (:func:`stage_of_residual`); below it the rung pattern decides. A fresh
+nominal draw closes 10 % or more in about one set of twenty
+(docs/design/sim2real-residual-stage.md)."""
 
 RESIDUAL_MOTION_SHARE = 0.5
-"""Where no candidate moves S toward R (:data:`RESIDUAL_STAGE_MIN_CLOSURE`) and both the pixel
-and the motion rung differ, a motion gap (floor-corrected AUC) at least this share of the
-pixel gap places the residual in "physics or scene": the cloth moves differently, and its
-pixels follow. Written after blind round 16's open sets (in-sample): the four out-of-library
-wind speeds of rounds 14-16 (21002, 22001, 23000, 23003) had nothing closing 5 % and motion
-at 0.66-0.92 of the pixel gap, and were all placed in "appearance or camera"; no other stored
-set lies where the rule acts. It is a prior, not a proof: tone curves move the flow little
-(motion 0-0.14 of the pixel gap), but a lens distortion bends the flow too (barrel 23104:
-0.02; barrel 23112: 0.7, placed by lighting variation's 21 % closure before the rule could
-act). Blind test: round 17."""
+"""Where no candidate moves S toward R and both the pixel and the motion rung differ, a motion
+gap at least this share of the pixel gap places the residual in "physics or scene": the cloth
+moves differently, and its pixels follow (docs/design/sim2real-residual-stage.md)."""
 
 _STAGE_PAIR = {
     "scene": "physics or scene",
