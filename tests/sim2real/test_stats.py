@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from sim2real import stats as st
+from sim2real.stats import kernels, resampling
 
 EXACT = 1e-12
 ALPHA = 0.05
@@ -54,7 +55,7 @@ def test_mmd2_is_unbiased_under_the_null():
     for _ in range(300):
         x, y = rng.normal(size=(8, 2)), rng.normal(size=(8, 2))
         unbiased.append(st.mmd2_unbiased(x, y, 1.0))
-        k = np.exp(-st._sq_dists(np.vstack([x, y]), np.vstack([x, y])) / 2)
+        k = np.exp(-kernels._sq_dists(np.vstack([x, y]), np.vstack([x, y])) / 2)
         biased.append(k[:8, :8].mean() + k[8:, 8:].mean() - 2 * k[:8, 8:].mean())
     se = np.std(unbiased) / math.sqrt(300)
     assert abs(np.mean(unbiased)) < 3 * se
@@ -67,9 +68,9 @@ def test_kernel_paths_of_compare_match_direct_formulas():
     x, gx = grouped_sample(rng, 5, 3, 4)
     y, gy = grouped_sample(rng, 4, 3, 4, shift=0.5)
     z, bw = np.vstack([x, y]), 1.3
-    k = np.exp(-st._sq_dists(z, z) / (2 * bw**2))
-    sides = st._permutation_sides(np.concatenate([gx, gy + 5]), 5, 9, 12, rng)
-    fast = st._mmd2_sides(k, np.ones(len(z)), sides)
+    k = np.exp(-kernels._sq_dists(z, z) / (2 * bw**2))
+    sides = resampling._permutation_sides(np.concatenate([gx, gy + 5]), 5, 9, 12, rng)
+    fast = kernels._mmd2_sides(k, np.ones(len(z)), sides)
     slow = [st.mmd2_unbiased(z[s], z[~s], bw) for s in sides.T]
     np.testing.assert_allclose(fast, slow, rtol=0, atol=EXACT)
 
@@ -80,11 +81,11 @@ def test_group_bootstrap_kernel_form_drops_pairs_of_group_copies():
     y, gy = grouped_sample(rng, 3, 3, 3)
     bw = 1.1
     z = np.vstack([x, y])
-    k = np.exp(-st._sq_dists(z, z) / (2 * bw**2))
+    k = np.exp(-kernels._sq_dists(z, z) / (2 * bw**2))
     n = len(x)
-    draws_x = st._bootstrap_draws(4, 6, rng)
-    draws_y = st._bootstrap_draws(3, 6, rng)
-    fast = st._mmd2_group_bootstrap(k[:n, :n], k[n:, n:], k[:n, n:], gx, gy, draws_x, draws_y)
+    draws_x = resampling._bootstrap_draws(4, 6, rng)
+    draws_y = resampling._bootstrap_draws(3, 6, rng)
+    fast = kernels._mmd2_group_bootstrap(k[:n, :n], k[n:, n:], k[:n, n:], gx, gy, draws_x, draws_y)
 
     def resample(rows, groups, draws):
         # (row, original group, copy number) of every clip of the resampled sample
