@@ -145,9 +145,9 @@ def label_design(labels_csv: Path) -> np.ndarray:
 
 def feature_name(rung: str | None, index: int | None) -> str:
     """A readable name for feature ``index`` of ``rung`` (network units by their index)."""
-    from sim2real.features import MOTION_FEATURE_NAMES, PIXEL_FEATURE_NAMES
+    from sim2real.rungs import HAND_RUNGS
 
-    names = {"pixel": PIXEL_FEATURE_NAMES, "motion": MOTION_FEATURE_NAMES}.get(rung)
+    names = {r.name: r.feature_names for r in HAND_RUNGS}.get(rung)
     if rung is None:
         return "-"
     return f"{rung}:{names[index]}" if names else f"{rung}:unit {index}"

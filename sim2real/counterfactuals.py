@@ -26,9 +26,8 @@ import math
 
 import numpy as np
 
-from .diagnosis import PIXEL_RUNGS
-from .features import MOTION_FEATURE_NAMES, PIXEL_FEATURE_NAMES
 from .ladder import LadderFeatures
+from .rungs import hand_rung, hand_rung_names
 from .stats import Gap, bootstrap_draws, domain_auc, gap_closed, mmd2_unbiased, standardize
 
 __all__ = [
@@ -50,13 +49,11 @@ signature at least this far from S to have a usable signature at all."""
 STATISTIC_BOOT = 200
 """Group-bootstrap replicates for the statistics' standard errors."""
 
-_FEATURES = {"pixel": PIXEL_FEATURE_NAMES, "motion": MOTION_FEATURE_NAMES}
-
 
 def statistic_names() -> list[str]:
     """Names of the clip statistics, in the order of :func:`clip_statistics`' columns."""
     return [f"{kind}({rung}.{name})" for kind in ("median", "spread")
-            for rung in PIXEL_RUNGS for name in _FEATURES[rung]]  # fmt: skip
+            for rung in hand_rung_names() for name in hand_rung(rung).feature_names]  # fmt: skip
 
 
 def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs) -> np.ndarray:
@@ -88,7 +85,7 @@ def clip_statistics(features: LadderFeatures, weights: np.ndarray | None = None)
     Returns:
         Shape (B, S) (B = 1 without weights); columns named by :func:`statistic_names`.
     """
-    values = np.concatenate([features.rungs[r] for r in PIXEL_RUNGS], axis=1)
+    values = np.concatenate([features.rungs[r] for r in hand_rung_names()], axis=1)
     if weights is None:
         weights = np.ones((len(values), 1))
     q25, q50, q75 = _weighted_quantiles(values, weights, (0.25, 0.5, 0.75))
@@ -151,7 +148,7 @@ def camera_signatures(
     raw_se = _bootstrap_se(sim, rng)
     se = np.maximum(raw_se, SCALE_FLOOR * spread + 1e-12)
     z = {e: np.abs(c - nominal).max(axis=0) / se for e, c in curves.items()}
-    features = np.concatenate([sim.rungs[r] for r in PIXEL_RUNGS], axis=1)
+    features = np.concatenate([sim.rungs[r] for r in hand_rung_names()], axis=1)
     # a feature S never varies, or a statistic no resampling of S moves (the median of a
     # clipped-black share that most clean clips have at 0), is no signature
     usable = np.tile(features.std(axis=0) > 0, 2) & (raw_se > 0)
@@ -368,7 +365,7 @@ def batchnorm_swap(
     """
     if real_adapted is None:
         return {"available": False, "reason": "the network has no batch-norm layer"}
-    layers = [n for n in gaps if n not in PIXEL_RUNGS and n in real_adapted.rungs]
+    layers = [n for n in gaps if n not in hand_rung_names() and n in real_adapted.rungs]
     out = {
         "available": True,
         "layers": swap_closure(sim, real, gaps, real_after=real_adapted, rungs=layers, rng=rng),

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -32,7 +32,7 @@ __all__ = [
     "MIN_BOX_SIDE",
     "MOTION_FEATURE_NAMES",
     "PIXEL_FEATURE_NAMES",
-    "clip_features",
+    "is_int",
     "motion_features",
     "pixel_features",
     "roi_box",
@@ -155,7 +155,8 @@ relative powers dimensionless; ``rows_*`` natural logs of dimensionless ratios. 
 :func:`motion_features`."""
 
 
-def _is_int(value) -> bool:
+def is_int(value) -> bool:
+    """Whether ``value`` is an integer (numpy's too), not a bool."""
     return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
 
 
@@ -187,11 +188,11 @@ def roi_box(
             "coverage must be uint8 with shape (..., H, W), H, W >= 1, "
             f"got {coverage.dtype} {coverage.shape}"
         )
-    if not _is_int(threshold) or not 1 <= threshold <= 255:
+    if not is_int(threshold) or not 1 <= threshold <= 255:
         raise ValueError(f"threshold must be an integer in [1, 255], got {threshold!r}")
-    if not _is_int(pad) or pad < 0:
+    if not is_int(pad) or pad < 0:
         raise ValueError(f"pad must be an integer >= 0, got {pad!r}")
-    if not _is_int(min_side) or min_side < 1:
+    if not is_int(min_side) or min_side < 1:
         raise ValueError(f"min_side must be an integer >= 1, got {min_side!r}")
     height, width = coverage.shape[-2:]
     covered = (coverage >= threshold).reshape(-1, height, width).any(axis=0)
@@ -235,7 +236,7 @@ def _check_box(box, height: int, width: int) -> tuple[int, int, int, int]:
         values = tuple(box)
     except TypeError:
         raise ValueError(f"{allowed}; got {box!r}") from None
-    if len(values) != 4 or not all(_is_int(v) for v in values):
+    if len(values) != 4 or not all(is_int(v) for v in values):
         raise ValueError(f"{allowed}; got {box!r}")
     y0, y1, x0, x1 = (int(v) for v in values)
     ok = (
@@ -577,67 +578,3 @@ def _row_timing(z: np.ndarray) -> np.ndarray:
                       *np.log(_temporal_bands(rows) + _LOG_EPS)])  # fmt: skip
     parts = np.asarray(parts)
     return np.concatenate([parts.ravel(), parts[-1] - parts[0]])
-
-
-def _boxes_for(box, count_hint: int | None):
-    """One box for all clips, or an iterator of per-clip boxes."""
-    array = np.asarray(box, dtype=object)
-    if array.ndim == 1 and array.shape == (4,) and all(_is_int(v) for v in array):
-        return None
-    if array.ndim == 2 and array.shape[1] == 4:
-        if count_hint is not None and len(array) != count_hint:
-            raise ValueError(
-                f"box must be one (y0, y1, x0, x1) or one per clip; got {len(array)} boxes "
-                f"for {count_hint} clips"
-            )
-        return [tuple(row) for row in array]
-    raise ValueError(
-        f"box must be one (y0, y1, x0, x1) of integers or a sequence of them, one per clip; "
-        f"got {box!r}"
-    )
-
-
-def clip_features(
-    clips: Iterable[np.ndarray],
-    box: tuple[int, int, int, int] | Sequence[tuple[int, int, int, int]],
-    *,
-    progress: bool = False,
-) -> dict[str, np.ndarray]:
-    """Pixel and motion features of many clips, stacked, for callers that compare sets.
-
-    Args:
-        clips: Clips, each uint8 RGB, shape (K, H, W, 3), K >= 3 (an array (N, K, H, W, 3)
-            works too).
-        box: One ``(y0, y1, x0, x1)`` for every clip, or one per clip (N of them).
-        progress: Show a tqdm progress bar.
-
-    Returns:
-        ``{"pixel": float64 (N, 35), "motion": float64 (N, 56)}``.
-
-    Raises:
-        ValueError: For a bad clip or box (see :func:`pixel_features`, :func:`motion_features`)
-            or a count of boxes that differs from the count of clips.
-    """
-    count = len(clips) if hasattr(clips, "__len__") else None
-    boxes = _boxes_for(box, count)
-    iterator: Iterable = clips
-    if progress:
-        from tqdm.auto import tqdm  # only callers that ask for a bar pay for tqdm
-
-        iterator = tqdm(clips, total=count, desc="clip features")
-    pixel, motion = [], []
-    for index, clip in enumerate(iterator):
-        if boxes is None:
-            clip_box = box
-        elif index < len(boxes):
-            clip_box = boxes[index]
-        else:
-            raise ValueError(f"box gives {len(boxes)} boxes but clips has more than that")
-        pixel.append(pixel_features(clip, clip_box))
-        motion.append(motion_features(clip, clip_box))
-    if boxes is not None and len(pixel) != len(boxes):
-        raise ValueError(f"box gives {len(boxes)} boxes but clips has {len(pixel)}")
-    return {
-        "pixel": np.asarray(pixel, np.float64).reshape(-1, len(PIXEL_FEATURE_NAMES)),
-        "motion": np.asarray(motion, np.float64).reshape(-1, len(MOTION_FEATURE_NAMES)),
-    }

@@ -22,8 +22,8 @@ import numpy as np
 from common.files import atomic_write_bytes
 
 from .domains import ClipSet
-from .features import clip_features
 from .network import layer_features
+from .rungs import clip_features
 
 __all__ = ["FEATURE_VERSION", "LadderFeatures", "content_key", "file_digest", "ladder_features"]
 
@@ -109,8 +109,7 @@ def ladder_features(
     Pixel and motion features look inside the cloth's ``box``; the net sees whole frames, as
     it saw its training clips.
     """
-    low = clip_features(clips.frames, box)
-    rungs = {"pixel": low["pixel"], "motion": low["motion"]}
+    rungs = clip_features(clips.frames, box)
     if net is not None:
         rungs.update(layer_features(net, clips.frames, batch_size=batch_size, device=device))
     for name, values in rungs.items():

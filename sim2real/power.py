@@ -27,11 +27,12 @@ from common.files import atomic_write_bytes
 from common.paths import check_output_dir
 from datasets.spec import DatasetSpec
 
-from .diagnosis import PIXEL_RUNGS, localise, rung_gaps
+from .diagnosis import localise, rung_gaps
 from .domains import real_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import NULL_SEED_OFFSET, SetContext, SetJob, _run_jobs, real_ladder
 from .report import read_report
+from .rungs import hand_rung_names
 
 __all__ = ["draw_spec", "nominal_draws", "pooled_detection", "report_real_features"]
 
@@ -67,7 +68,7 @@ def pooled_detection(
         out.append({
             "draws": count, "sims": len(set(pooled.groups.tolist())),
             "gap_p": location["gap_p"], "detected": location["gap_p"] < alpha,
-            "rungs": rungs, "pixel_or_motion": [n for n in rungs if n in PIXEL_RUNGS],
+            "rungs": rungs, "pixel_or_motion": [n for n in rungs if n in hand_rung_names()],
             "p": {n: [g.p_value, g.p_c2st] for n, g in gaps.items()},
         })  # fmt: skip
     return out

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from .coalitions import best_subset_values, shapley_values
 from .fit import fit_strength
-from .localise import PIXEL_RUNGS, harmonic_mean_p, localise, rung_gaps, scored_rungs
+from .localise import harmonic_mean_p, localise, rung_gaps, scored_rungs
 from .probes import probe_transfer
 from .ranking import (
     KERNEL_MIN_CLOSURE,
@@ -57,7 +57,6 @@ __all__ = [
     "NEUTRAL_RULE",
     "OPEN_SET_MARGIN",
     "OPEN_SET_MIN_CLOSURE",
-    "PIXEL_RUNGS",
     "RESIDUAL_MOTION_SHARE",
     "RESIDUAL_STAGE_MIN_CLOSURE",
     "SATURATED_AUC",

@@ -9,6 +9,7 @@ import numpy as np
 from scipy import stats as sstats
 
 from ..ladder import LadderFeatures
+from ..rungs import hand_rung_names, rungs_revealing
 from ..stats import (
     Gap,
     compare,
@@ -16,10 +17,9 @@ from ..stats import (
     standardize,
 )
 
-__all__ = ["PIXEL_RUNGS", "harmonic_mean_p", "localise", "rung_gaps", "scored_rungs"]
+__all__ = ["harmonic_mean_p", "localise", "rung_gaps", "scored_rungs"]
 
 
-PIXEL_RUNGS = ("pixel", "motion")
 
 
 def rung_gaps(
@@ -99,10 +99,11 @@ def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
         [n for n in names if gaps[n].p_gap < alpha and above_floor(gaps[n])]
         if gap_p < alpha else []
     )  # fmt: skip
-    layers = [n for n in names if n not in PIXEL_RUNGS]
+    layers = [n for n in names if n not in hand_rung_names()]
     first_layer = next((n for n in layers if n in significant), None)
     jump, rise = None, -math.inf
-    previous = gaps["pixel"].corrected_auc if "pixel" in gaps else 0.0
+    image = [gaps[n].corrected_auc for n in rungs_revealing("image") if n in gaps]
+    previous = max(image, default=0.0)
     for name in layers:
         value = gaps[name].corrected_auc
         value = 0.0 if math.isnan(value) else value
@@ -131,10 +132,10 @@ def scored_rungs(location: dict, scoreable: Callable[[str], bool] | None = None)
     when it rejects every rung that shows the gap, the choice without it is kept.
     """
     significant = location["significant"]
-    layers = [n for n in significant if n not in PIXEL_RUNGS]  # the first: as localise's
+    layers = [n for n in significant if n not in hand_rung_names()]  # the first: as localise's
 
     def pick(accept: Callable[[str], bool]) -> list[str]:
-        return [n for n in PIXEL_RUNGS if n in significant and accept(n)] + next(
+        return [n for n in hand_rung_names() if n in significant and accept(n)] + next(
             ([n] for n in layers if accept(n)), [])  # fmt: skip
 
     return (scoreable is not None and pick(scoreable)) or pick(lambda _: True)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..rungs import rungs_revealing
+
 __all__ = ["RESIDUAL_MOTION_SHARE", "RESIDUAL_STAGE_MIN_CLOSURE", "stage_of_residual"]
 
 
@@ -68,8 +70,9 @@ def stage_of_residual(
     """
     if not location["significant"] and location["first_significant_layer"] is None:
         return "none (no significant gap)"
-    moves = "motion" in location["significant"]
-    if "pixel" in location["significant"]:
+    significant = location["significant"]
+    moves = any(n in significant for n in rungs_revealing("dynamics"))
+    if any(n in significant for n in rungs_revealing("image")):
         by_pattern = "appearance or camera"
         pattern = "the pixel statistics differ" + ("" if moves else ", the motion does not")
     elif moves:
@@ -87,7 +90,7 @@ def stage_of_residual(
             f"{_STAGE_PAIR[best]} (the {best} candidates close most of it, "
             f"{100 * scores[best]:.0f} %, too little to name one; {pattern})"
         )
-    pixel, motion = ((gaps or {}).get(k) for k in ("pixel", "motion"))
+    pixel, motion = (_largest(gaps, rungs_revealing(kind)) for kind in ("image", "dynamics"))
     if moves and by_pattern == "appearance or camera" and None not in (pixel, motion):
         if motion >= RESIDUAL_MOTION_SHARE * pixel:
             return (
@@ -95,3 +98,9 @@ def stage_of_residual(
                 f"as much as the pixel statistics: gaps {motion:.2f} and {pixel:.2f})"
             )
     return f"{by_pattern} ({pattern})"
+
+
+def _largest(gaps: dict[str, float] | None, names: tuple[str, ...]) -> float | None:
+    """The largest gap among ``names`` (``None`` when none of them is measured)."""
+    values = [gaps[n] for n in names if gaps and gaps.get(n) is not None]
+    return max(values) if values else None

@@ -8,11 +8,11 @@ from render import effects as fx
 from sim2real.features import (
     MOTION_FEATURE_NAMES,
     PIXEL_FEATURE_NAMES,
-    clip_features,
     motion_features,
     pixel_features,
     roi_box,
 )
+from sim2real.rungs import clip_features
 
 cv2.setNumThreads(1)
 
