@@ -35,6 +35,7 @@ reports are kept); the last line printed is JSON.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import math
@@ -173,11 +174,11 @@ def _row(tag: str, seed: int, identical: bool, detection: dict, size: dict,
         "effect_size_adjusted": size.get("d_adjusted"),
     }  # fmt: skip
     if result is not None:
-        ranking = result["ranking"]
-        row["named"] = ranking["top"] if ranking["explained"] else "unexplained"
-        if name in ranking["ranking"]:
-            row["rank"] = ranking["ranking"].index(name) + 1
-            row["closure"] = result["candidates"][name]["best_score"]
+        ranking = result.ranking
+        row["named"] = ranking.top if ranking.explained else "unexplained"
+        if name in ranking.ranking:
+            row["rank"] = ranking.ranking.index(name) + 1
+            row["closure"] = result.candidates[name]["best_score"]
     return row
 
 
@@ -290,13 +291,13 @@ def main(argv: list[str] | None = None) -> None:
     # The first twin's diagnosis builds S and S' and fixes the box for every set.
     first = sealed(out / "sets" / f"twin-{args.first_seed}", args.first_seed, [])
     reference = _diagnosed(out / "reports" / first.name, {**common, "real_dir": first})
-    inputs = reference["inputs"]
+    inputs = reference.inputs
     draws = nominal_draws(inputs, 2, n_jobs=args.n_jobs)
-    settings = {"n_perm": inputs["budget_settings"]["n_perm"], "seed": inputs["seed"],
-                "alpha": inputs["alpha"]}  # fmt: skip
+    settings = {"n_perm": inputs.budget_settings["n_perm"], "seed": inputs.seed,
+                "alpha": inputs.alpha}  # fmt: skip
 
     def features(folder: Path):
-        return report_real_features({**inputs, "real_dir": str(folder)})
+        return report_real_features(dataclasses.replace(inputs, real_dir=str(folder)))
 
     def gap(found):
         return pooled_detection(draws, found, [2], **settings)[0]
@@ -322,7 +323,7 @@ def main(argv: list[str] | None = None) -> None:
             # group permutations that split a pair inflate the null (p near 1 even for
             # effects the diagnosis names); the effect size is the paired measure.
             done(_row(tag, seed, identical, gap(found), size, result, effect["name"]))
-    needed = needed_effect_size(args.videos, inputs["sim_groups"] * 2)
+    needed = needed_effect_size(args.videos, inputs.sim_groups * 2)
     summary = summarise(rows)
     out.mkdir(parents=True, exist_ok=True)
     table = _table(rows, needed)

@@ -85,18 +85,18 @@ def main() -> None:
         start = time.perf_counter()
         run_diagnosis(out_dir=work / "report-again", progress=False, **kwargs)
         rerun = (time.perf_counter() - start) / 60
-        split = {k: round(v / 60, 2) for k, v in result["timing"].items()}
-        clips = result["inputs"]["sim_clips"] * result["sets"]["total"]
+        split = {k: round(v / 60, 2) for k, v in result.timing.items()}
+        clips = result.inputs.sim_clips * result.sets["total"]
         print(
             f"seal {seal_minutes:.1f} min; diagnose {minutes:.1f} min (split, worker-minutes "
             f"for generate/features of candidate sets: {split}); rerun {rerun:.2f} min"
         )
         print(json.dumps({
             "diagnose_minutes": round(minutes, 2), "rerun_minutes": round(rerun, 2),
-            "seal_minutes": round(seal_minutes, 2), "candidate_sets": result["sets"]["total"],
-            "clips_generated": clips, "real_clips": result["inputs"]["real_clips"],
-            "split_minutes": split, "jobs": args.jobs, "top": result["ranking"]["top"],
-            "explained": result["ranking"]["explained"],
+            "seal_minutes": round(seal_minutes, 2), "candidate_sets": result.sets["total"],
+            "clips_generated": clips, "real_clips": result.inputs.real_clips,
+            "split_minutes": split, "jobs": args.jobs, "top": result.ranking.top,
+            "explained": result.ranking.explained,
         }))  # fmt: skip
 
 

@@ -67,7 +67,7 @@ def main(cfg: DictConfig) -> None:
         result = run(cfg)
     except ValueError as err:  # the diagnosis's own checks raise ValueErrors naming the field
         raise InputError(" ".join(str(err).split())) from err
-    out = cfg.out_dir or f"outputs/sim2real/{result['name']}"
+    out = cfg.out_dir or f"outputs/sim2real/{result.name}"
     print(verdict(result))
     print(f"report: {Path(out) / 'report.html'}")
 

@@ -46,6 +46,7 @@ from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
 from .network import adapt_batchnorm, layer_features
 from .report import contact_sheet, json_safe, write_report
+from .result import Diagnosis
 from .stacking import STACK_MIN_LEADER, explained_by_stack, stacked_fit
 
 __all__ = [
@@ -300,10 +301,10 @@ def run_diagnosis(
     device: str = "auto",
     name: str | None = None,
     progress: bool = True,
-) -> dict:
+) -> Diagnosis:
     """Diagnose the gap between ``real_dir`` and the data ``run`` was trained on.
 
-    Returns the result dict (also written as ``out_dir/report.json`` with the Markdown and
+    Returns the diagnosis (also written as ``out_dir/report.json`` with the Markdown and
     HTML reports and figures). See :mod:`sim2real.diagnosis` for the method.
     """
     timing: dict[str, float] = {}
@@ -509,13 +510,13 @@ def run_diagnosis(
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
         "timing": timing,
     }  # fmt: skip
-    result = json_safe(result)
+    diagnosis = Diagnosis.from_json(json_safe(result))
     sheet_rows = {"S (nominal simulation)": nominal_clips.frames[0]}
     sheet_rows.update({f"R: {real.groups[i]}": real.frames[i] for i in _spread(len(real), 3)})
     out_dir.mkdir(parents=True, exist_ok=True)
     contact_sheet(out_dir / "clips.png", sheet_rows, context.box)
-    write_report(result, out_dir, extra_figures=("clips.png",))
-    return result
+    write_report(diagnosis, out_dir, extra_figures=("clips.png",))
+    return diagnosis
 
 
 def _stage_swaps(

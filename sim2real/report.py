@@ -17,14 +17,11 @@ from common.errors import InputError
 from common.files import atomic_write_bytes
 from models.report import markdown_table, write_json, write_text
 
-__all__ = ["REPORT_INPUTS", "contact_sheet", "json_safe", "read_report", "verdict", "write_report"]
+from .result import Diagnosis
 
-REPORT_INPUTS = ("run", "real_dir", "box", "checkpoint", "mesh_cache", "cache_dir", "clip_len",
-                 "clip_stride", "nominal_spec", "budget_settings", "seed", "device")  # fmt: skip
-"""The ``inputs`` of a stored diagnosis that the commands reading it back rely on."""
+__all__ = ["contact_sheet", "json_safe", "read_report", "verdict", "write_report"]
 
-
-def read_report(path: str | Path, field: str) -> dict:
+def read_report(path: str | Path, field: str) -> Diagnosis:
     """A diagnosis's ``report.json`` read back, refused in one line unless it is one.
 
     Args:
@@ -37,16 +34,12 @@ def read_report(path: str | Path, field: str) -> dict:
     if not path.is_file():
         raise InputError(f"{field}: {path} does not exist (give a diagnosis's report.json)")
     try:
-        report = json.loads(path.read_text(encoding="utf-8"))
+        return Diagnosis.from_json(json.loads(path.read_text(encoding="utf-8")))
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise InputError(f"{field}: {path} is not JSON ({error})") from None
-    inputs = report.get("inputs") if isinstance(report, dict) else None
-    missing = [k for k in REPORT_INPUTS if not isinstance(inputs, dict) or k not in inputs]
-    missing += [k for k in ("ranking", "candidates", "rungs") if not isinstance(report, dict)
-                or not isinstance(report.get(k), dict)]  # fmt: skip
-    if missing:
-        raise InputError(f"{field}: {path} is not a diagnosis's report.json (no {missing[0]})")
-    return report
+    except (ValueError, TypeError) as error:
+        raise InputError(f"{field}: {path} is not a diagnosis's report.json ({error})") from None
+
 
 STAGE_COLOURS = {"scene": "#8c564b", "physics": "#1f77b4", "appearance": "#2ca02c",
                  "camera": "#ff7f0e", "null": "#7f7f7f"}  # fmt: skip
@@ -77,89 +70,89 @@ def _ci(pair) -> str:
     return f"[{_fmt(pair[0])}, {_fmt(pair[1])}]"
 
 
-def verdict(result: dict) -> str:
+def verdict(result: Diagnosis) -> str:
     """One paragraph answering the three questions from the result JSON."""
-    loc = result["location"]
-    ranking = result["ranking"]
-    gaps = result.get("detection_rungs") or result["rungs"]  # what the gap test compared
-    if not loc["significant"]:
+    loc = result.location
+    ranking = result.ranking
+    gaps = result.detection_rungs or result.rungs  # what the gap test compared
+    if not loc.significant:
         return " ".join([
             "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
-            f"combined: p {_fmt(loc.get('gap_p'), 2)}, alpha {loc['alpha']:g}): the simulated "
+            f"combined: p {_fmt(loc.gap_p, 2)}, alpha {loc.alpha:g}): the simulated "
             "and real clips are not distinguishable with this budget.",
             *_detectability_sentences(result),
         ])  # fmt: skip
     rung_text = ", ".join(
-        f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc["significant"]
+        f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc.significant
     )
-    parts = [f"There is a gap (all rungs' tests combined: p {_fmt(loc.get('gap_p'), 2)}); "
+    parts = [f"There is a gap (all rungs' tests combined: p {_fmt(loc.gap_p, 2)}); "
              f"it shows on {rung_text}."]  # fmt: skip
-    if loc["first_significant_layer"]:
+    if loc.first_significant_layer:
         parts.append(
-            f"In the network it first appears at {loc['first_significant_layer']}; the largest "
-            f"rise is at {loc['jump_layer']}."
+            f"In the network it first appears at {loc.first_significant_layer}; the largest "
+            f"rise is at {loc.jump_layer}."
         )
     parts += _swap_sentences(result)
-    if ranking["explained"]:
-        top = result["candidates"][ranking["top"]]
+    if ranking.explained:
+        top = result.candidates[ranking.top]
         strength = top["best_strength"]
         parts.append(
-            f"The candidate that closes most of it is {ranking['top']} (stage {top['stage']}"
+            f"The candidate that closes most of it is {ranking.top} (stage {top['stage']}"
             + ("" if strength is None else f", fitted strength {_fmt(strength)}")
             + f"), closing {100 * top['best_score']:.0f} % of the floor-corrected gap on the "
-            f"scored rungs (threshold {100 * ranking['threshold']:.0f} %, a fresh nominal draw "
-            f"closes {100 * ranking['null_score']:.0f} %)."
+            f"scored rungs (threshold {100 * ranking.threshold:.0f} %, a fresh nominal draw "
+            f"closes {100 * ranking.null_score:.0f} %)."
         )
-        at = ranking.get("kernel_strength")
-        if at is not None and at != strength and ranking.get("kernel_closure") is not None:
+        at = ranking.kernel_strength
+        if at is not None and at != strength and ranking.kernel_closure is not None:
             parts.append(
                 f"At strength {_fmt(at)}, which the classifier cannot tell from the fitted one, "
-                f"it also closes {100 * ranking['kernel_closure']:.0f} % of the kernel distance."
+                f"it also closes {100 * ranking.kernel_closure:.0f} % of the kernel distance."
             )
-        if ranking.get("explained_by"):
+        if ranking.explained_by:
             parts.append(
                 "Alone it closes less than the threshold; together with "
-                + ", ".join(n for n in ranking["explained_by"] if n != ranking["top"])
-                + f" it closes {100 * ranking['explained_by_score']:.0f} %."
+                + ", ".join(n for n in ranking.explained_by if n != ranking.top)
+                + f" it closes {100 * ranking.explained_by_score:.0f} %."
             )
-        if ranking["confusable_with_top"]:
+        if ranking.confusable_with_top:
             parts.append(
-                "It cannot be told apart from " + ", ".join(ranking["confusable_with_top"]) + "."
+                "It cannot be told apart from " + ", ".join(ranking.confusable_with_top) + "."
             )
-    elif ranking.get("neutral_in_interval"):
-        top = result["candidates"][ranking["top"]]
+    elif ranking.neutral_in_interval:
+        top = result.candidates[ranking.top]
         held = (f"its strength interval {_ci(tuple(top['strength_interval']))} holds its "
                 f"neutral value {_fmt(top['neutral'])}")  # fmt: skip
-        if top["best_score"] >= ranking["threshold"]:
+        if top["best_score"] >= ranking.threshold:
             parts.append(
-                f"{ranking['top']} closes {100 * top['best_score']:.0f} % of the classifier "
+                f"{ranking.top} closes {100 * top['best_score']:.0f} % of the classifier "
                 f"gap, but {held}: the data cannot tell it from its absence, so it is not named."
             )
         else:  # the low closure is the reason; the neutral value also bars its coalitions
             parts.append(
-                f"{ranking['top']} leads with {100 * top['best_score']:.0f} % (threshold "
-                f"{100 * ranking['threshold']:.0f} %) and {held}, so neither it nor a "
+                f"{ranking.top} leads with {100 * top['best_score']:.0f} % (threshold "
+                f"{100 * ranking.threshold:.0f} %) and {held}, so neither it nor a "
                 "coalition it leads is named."
             )
-        parts.append(f"Unexplained residual at stage {result['residual_stage']}.")
-    elif ranking.get("look_alike"):
-        top = result["candidates"][ranking["top"]]
+        parts.append(f"Unexplained residual at stage {result.residual_stage}.")
+    elif ranking.look_alike:
+        top = result.candidates[ranking.top]
         parts.append(
-            f"{ranking['top']} closes {100 * top['best_score']:.0f} % of the classifier gap "
-            f"but only {100 * ranking['kernel_closure']:.0f} % of the kernel distance on "
-            f"{', '.join(ranking['kernel_rungs'])} (both must reach "
-            f"{100 * ranking['kernel_threshold']:.0f} %): a look-alike, not the cause. "
-            f"Unexplained residual at stage {result['residual_stage']}."
+            f"{ranking.top} closes {100 * top['best_score']:.0f} % of the classifier gap "
+            f"but only {100 * ranking.kernel_closure:.0f} % of the kernel distance on "
+            f"{', '.join(ranking.kernel_rungs)} (both must reach "
+            f"{100 * ranking.kernel_threshold:.0f} %): a look-alike, not the cause. "
+            f"Unexplained residual at stage {result.residual_stage}."
         )
     else:
         parts.append(
-            f"No candidate closes at least {100 * ranking['threshold']:.0f} % of it: "
-            f"unexplained residual at stage {result['residual_stage']}."
+            f"No candidate closes at least {100 * ranking.threshold:.0f} % of it: "
+            f"unexplained residual at stage {result.residual_stage}."
         )
-    parts += _residual_sentences(result.get("residual"))
-    if not ranking["explained"]:
+    parts += _residual_sentences(result.residual)
+    if not ranking.explained:
         parts += _detectability_sentences(result)
-    shrink = result.get("shrink")
+    shrink = result.shrink
     if shrink is None:
         parts.append("How far it shrinks after retraining was not measured in this run.")
     else:
@@ -190,12 +183,12 @@ def _residual_sentences(residual: dict | None) -> list[str]:
     return [f"{added}, no significant gap remains (p {_fmt(residual['gap_p'], 2)})."]
 
 
-def _detectability_sentences(result: dict) -> list[str]:
+def _detectability_sentences(result: Diagnosis) -> list[str]:
     """The verdict's words on what the test could not have seen (empty without the analysis)."""
-    found = result.get("detectability")
+    found = result.detectability
     if not found:
         return []
-    sims = result["inputs"]["sim_groups"]
+    sims = result.inputs.sim_groups
     blind = [n for n, e in found.items() if e["verdict"] == "undetected"]
     inert = [n for n, e in found.items() if e["verdict"] == "inert"]
     parts = []
@@ -242,13 +235,13 @@ def _detectability_lines(found: dict | None) -> list[str]:
     ]
 
 
-def _swap_sentences(result: dict) -> list[str]:
+def _swap_sentences(result: Diagnosis) -> list[str]:
     """The verdict's words on the counterfactual stage swaps (empty when there are none)."""
-    swaps = result.get("counterfactuals")
+    swaps = result.counterfactuals
     if not swaps:
         return []
     out = []
-    shown = list(result["location"]["significant"])
+    shown = list(result.location.significant)
     camera = swaps["camera"]
     if camera["rungs"]:
         closed = ", ".join(f"{100 * camera['rungs'][r]['closure']:.0f} % on {r}" for r in shown
@@ -259,7 +252,7 @@ def _swap_sentences(result: dict) -> list[str]:
         out.append("R's camera statistics (noise, blur, compression, frame rate, shake, colour "
                    "cast) match S's.")  # fmt: skip
     norm = swaps["batchnorm"]
-    layer = result["location"]["first_significant_layer"]
+    layer = result.location.first_significant_layer
     if norm.get("available") and layer in norm["layers"]:
         text = (f"Re-estimating the network's batch-norm statistics on R closes "
                 f"{100 * norm['layers'][layer]['closure']:.0f} % at {layer}")  # fmt: skip
@@ -379,18 +372,18 @@ def _shrink_section(shrink: dict | None) -> list[str]:
     ]
 
 
-def _rung_rows(result: dict) -> list[list]:
+def _rung_rows(result: Diagnosis) -> list[list]:
     rows = []
-    pooled = result.get("detection_rungs") or {}
-    for name, gap in result["rungs"].items():
-        probe = result["probes"].get(name, {})
+    pooled = result.detection_rungs or {}
+    for name, gap in result.rungs.items():
+        probe = result.probes.get(name, {})
         rows.append([
             name, _fmt(gap["mmd2"]), _ci(gap["mmd2_ci"]), _fmt(gap["floor_mmd2"]),
             _fmt(gap["auc"], 2), _ci(gap["auc_ci"]), _fmt(gap["floor_auc"], 2),
             _fmt(gap["p_value"], 2), _fmt(gap.get("p_c2st"), 2),
             _fmt(pooled.get(name, {}).get("p_gap"), 2),
-            "yes" if name in result["location"]["significant"] else "",
-            "yes" if name in result["location"].get("bonferroni", ()) else "",
+            "yes" if name in result.location.significant else "",
+            "yes" if name in result.location.bonferroni else "",
             _fmt(probe.get("stiffness_spearman"), 2), _fmt(probe.get("density_spearman"), 2),
         ])  # fmt: skip
     return rows
@@ -407,11 +400,11 @@ def _percent(value: float | None) -> str:
     return "–" if value is None else f"{100 * value:.0f} %"
 
 
-def _candidate_rows(result: dict) -> list[list]:
+def _candidate_rows(result: Diagnosis) -> list[list]:
     rows = []
-    rungs = result["scored_rungs"]
-    for rank, name in enumerate(result["ranking"]["ranking"], 1):
-        entry = result["candidates"][name]
+    rungs = result.scored_rungs
+    for rank, name in enumerate(result.ranking.ranking, 1):
+        entry = result.candidates[name]
         best = entry["best"] if "best" in entry else int(np.argmax(entry["score"]))
         closure = entry.get("closure_auc") or entry["closure"]
         closes = [f"{100 * closure[r][best]:.0f} %" for r in rungs]
@@ -422,7 +415,7 @@ def _candidate_rows(result: dict) -> list[list]:
             f"{100 * entry['best_score']:.0f} %", _percent(entry.get("kernel_closure")),
             *closes,
         ])  # fmt: skip
-    null = result.get("null")
+    null = result.null
     if null is not None:
         closure = null.get("closure_auc") or null["closure"]
         closes = [f"{100 * closure[r][0]:.0f} %" for r in rungs]
@@ -500,14 +493,14 @@ def _swap_lines(swaps: dict | None) -> list[str]:
     return lines
 
 
-def _markdown(result: dict, figures: list[str]) -> str:
-    lines = [f"# Sim-to-real diagnosis: {result['name']}", "", verdict(result), ""]
-    info = result["inputs"]
+def _markdown(result: Diagnosis, figures: list[str]) -> str:
+    lines = [f"# Sim-to-real diagnosis: {result.name}", "", verdict(result), ""]
+    info = result.inputs
     lines += [
-        f"Real set: `{info['real_dir']}` ({info['real_videos']} videos, {info['real_clips']} "
-        f"clips; skipped as too short: {info['real_skipped'] or 'none'}). Run: `{info['run']}`. "
-        f"Simulated nominal set S: {info['sim_clips']} clips of {info['sim_groups']} "
-        f"simulations (training data settings, fresh seeds). Budget `{info['budget']}`.",
+        f"Real set: `{info.real_dir}` ({info.real_videos} videos, {info.real_clips} "
+        f"clips; skipped as too short: {info.real_skipped or 'none'}). Run: `{info.run}`. "
+        f"Simulated nominal set S: {info.sim_clips} clips of {info.sim_groups} "
+        f"simulations (training data settings, fresh seeds). Budget `{info.budget}`.",
         "",
         "## 1. Where the gap lies",
         "",
@@ -524,14 +517,14 @@ def _markdown(result: dict, figures: list[str]) -> str:
         "of the class position trained on S, Spearman ρ of the per-video prediction with the "
         "measured values on R.",
         "",
-        *_swap_lines(result.get("counterfactuals")),
+        *_swap_lines(result.counterfactuals),
         "## 2. Which unmodelled effect",
         "",
-        f"Scored rungs: {', '.join(result['scored_rungs']) or 'none'}. Score = mean fraction "
+        f"Scored rungs: {', '.join(result.scored_rungs) or 'none'}. Score = mean fraction "
         "of the floor-corrected domain-classifier AUC that S_e closes at the fitted strength "
         "(AUC(S, R) - AUC(S_e, R)) / (AUC(S, R) - floor); kernel = mean fraction of the "
         "floor-corrected MMD² closed on the scored rungs where it lies above its floor ("
-        + (", ".join(result["ranking"].get("kernel_rungs", ())) or "none")
+        + (", ".join(result.ranking.kernel_rungs) or "none")
         + "), at the fitted strength or, where larger, at another strength inside the interval "
         "whose score also reaches the threshold. A cause must reach the threshold on both.",
         "",
@@ -544,27 +537,27 @@ def _markdown(result: dict, figures: list[str]) -> str:
                 "interval",
                 "score",
                 "kernel",
-                *[f"closes {r}" for r in result["scored_rungs"]],
+                *[f"closes {r}" for r in result.scored_rungs],
             ],
             _candidate_rows(result),
         ),
-        *_shapley_lines(result.get("shapley")),
-        *_stacked_lines(result.get("stacked")),
-        *_detectability_lines(result.get("detectability")),
+        *_shapley_lines(result.shapley),
+        *_stacked_lines(result.stacked),
+        *_detectability_lines(result.detectability),
         "Best score per stage: "
         + ", ".join(
             f"{s} {('–' if v is None else f'{100 * v:.0f} %')}"
-            for s, v in result["ranking"]["stage_scores"].items()
+            for s, v in result.ranking.stage_scores.items()
         ),
         "",
         "## 3. How far it shrinks",
         "",
-        *_shrink_section(result.get("shrink")),
+        *_shrink_section(result.shrink),
         "## Time",
         "",
         markdown_table(
             ["stage", "seconds"],
-            [[k, f"{v:.1f}"] for k, v in result["timing"].items()],
+            [[k, f"{v:.1f}"] for k, v in result.timing.items()],
         ),
         "",
     ]
@@ -572,9 +565,9 @@ def _markdown(result: dict, figures: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _html(markdown: str, result: dict, figures: list[str]) -> str:
+def _html(markdown: str, result: Diagnosis, figures: list[str]) -> str:
     """A self-contained page: the verdict, the tables (as preformatted Markdown) and figures."""
-    body = [f"<h1>Sim-to-real diagnosis: {html.escape(result['name'])}</h1>",
+    body = [f"<h1>Sim-to-real diagnosis: {html.escape(result.name)}</h1>",
             f"<p><b>Verdict.</b> {html.escape(verdict(result))}</p>"]  # fmt: skip
     body += [f'<p><img src="{f}" style="max-width:100%"></p>' for f in figures]
     body.append(f"<pre>{html.escape(markdown)}</pre>")
@@ -593,20 +586,20 @@ def _png(fig) -> bytes:
     return buffer.getvalue()
 
 
-def _figures(result: dict, out_dir: Path) -> list[str]:
+def _figures(result: Diagnosis, out_dir: Path) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = list(result["rungs"])
-    gaps = [result["rungs"][n] for n in names]
+    names = list(result.rungs)
+    gaps = [result.rungs[n] for n in names]
     fig, ax = plt.subplots(figsize=(9, 3.8), dpi=100)
     auc = np.array([g["auc"] for g in gaps])
     lo = np.array([g["auc_ci"][0] for g in gaps])
     hi = np.array([g["auc_ci"][1] for g in gaps])
     floor = np.array([np.nan if g["floor_auc"] is None else g["floor_auc"] for g in gaps])
-    colours = ["#d62728" if n in result["location"]["significant"] else "#7f7f7f" for n in names]
+    colours = ["#d62728" if n in result.location.significant else "#7f7f7f" for n in names]
     ax.bar(names, auc, color=colours, yerr=[auc - lo, hi - auc], capsize=3)
     ax.plot(names, floor, "k_", markersize=18, label="noise floor (S vs S', R vs R')")
     ax.set_ylim(0.3, 1.02)
@@ -618,15 +611,15 @@ def _figures(result: dict, out_dir: Path) -> list[str]:
     atomic_write_bytes(out_dir / "rungs.png", _png(fig))
     plt.close(fig)
 
-    ranking = result["ranking"]["ranking"]
-    scores = [result["candidates"][n]["best_score"] for n in ranking]
-    stages = [result["candidates"][n]["stage"] for n in ranking]
+    ranking = result.ranking.ranking
+    scores = [result.candidates[n]["best_score"] for n in ranking]
+    stages = [result.candidates[n]["stage"] for n in ranking]
     fig, ax = plt.subplots(figsize=(9, 0.28 * len(ranking) + 1.4), dpi=100)
     ax.barh(ranking[::-1], scores[::-1], color=[STAGE_COLOURS[s] for s in stages[::-1]])
     ax.axvline(
-        result["ranking"]["threshold"], color="k", linestyle="--", label="open-set threshold"
+        result.ranking.threshold, color="k", linestyle="--", label="open-set threshold"
     )
-    ax.axvline(result["ranking"]["null_score"], color="#7f7f7f", linestyle=":",
+    ax.axvline(result.ranking.null_score, color="#7f7f7f", linestyle=":",
                label="fresh nominal draw S'")  # fmt: skip
     ax.set_xlim(-1, 1)
     ax.set_xlabel("fraction of the floor-corrected gap closed (scored rungs, fitted strength)")
@@ -662,11 +655,11 @@ def contact_sheet(path: Path, rows: dict[str, np.ndarray], box, frames: int = 5)
     atomic_write_bytes(path, data.tobytes())
 
 
-def write_report(result: dict, out_dir: Path, extra_figures: tuple[str, ...] = ()) -> None:
+def write_report(result: Diagnosis, out_dir: Path, extra_figures: tuple[str, ...] = ()) -> None:
     """Write ``report.json``, ``report.md``, ``report.html`` and the figures into ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     figures = [*extra_figures, *_figures(result, out_dir)]
     markdown = _markdown(result, figures)
-    write_json(out_dir / "report.json", result)
+    write_json(out_dir / "report.json", result.to_json())
     write_text(out_dir / "report.md", markdown)
     write_text(out_dir / "report.html", _html(markdown, result, figures))

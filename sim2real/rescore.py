@@ -21,6 +21,8 @@ ranking.
 
 from __future__ import annotations
 
+import dataclasses
+
 from .diagnosis import (
     OPEN_SET_MIN_CLOSURE,
     CandidateResult,
@@ -29,47 +31,47 @@ from .diagnosis import (
     stage_of_residual,
 )
 from .pipeline import explained_together
+from .report import json_safe
+from .result import Diagnosis, Ranking
 from .stacking import STACK_MIN_LEADER, explained_by_stack
 
 __all__ = ["decide_again", "decided_again"]
 
 
-def decide_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> dict:
+def decide_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> Ranking:
     """The ranking of a stored ``report`` decided again at open-set threshold ``min_closure``.
 
-    Returns the ranking as :func:`sim2real.pipeline.run_diagnosis` stores it, plus
-    ``"replayed"``: ``False`` when the decision needs a stacked fit that the stored run did
+    Returns the ranking as :func:`sim2real.pipeline.run_diagnosis` stores it, with
+    ``replayed``: ``False`` when the decision needs a stacked fit that the stored run did
     not make (see the module docstring).
     """
-    stored = report["ranking"]["ranking"]  # ties keep their stored order (a stable sort)
-    order = sorted(report["candidates"], key=lambda n: stored.index(n) if n in stored else 0)
-    results = [CandidateResult.from_json(report["candidates"][n]) for n in order]
-    null = CandidateResult.from_json(report["null"]) if report.get("null") else None
+    stored = report.ranking.ranking  # ties keep their stored order (a stable sort)
+    order = sorted(report.candidates, key=lambda n: stored.index(n) if n in stored else 0)
+    results = [CandidateResult.from_json(report.candidates[n]) for n in order]
+    null = CandidateResult.from_json(report.null) if report.null else None
     ranking = rank_candidates(
-        results, null, report["ranking"]["kernel_rungs"], min_closure=min_closure
+        results, null, report.ranking.kernel_rungs, min_closure=min_closure
     )
     alone = {r.name: r.best_score for r in results}
-    ranking = explained_together(ranking, report.get("shapley"), alone)
-    ranking["replayed"] = True
+    ranking = {**explained_together(ranking, report.shapley, alone), "replayed": True}
     top = ranking["top"]
+    stacked = report.stacked
     if (ranking["explained"] or top is None or ranking["neutral_in_interval"]
             or alone[top] < STACK_MIN_LEADER):  # fmt: skip
-        return ranking
-    stacked = report.get("stacked")
-    if stacked is None or stacked["leader"] != top:
+        pass
+    elif stacked is None or stacked["leader"] != top:
         ranking["replayed"] = False
-        return ranking
-    if stacked["best"] is not None and explains_together(
+    elif stacked["best"] is not None and explains_together(
         stacked["score"], stacked["kernel_closure"], ranking["threshold"],
         [alone[top], alone[stacked["best"]]],
     ):  # fmt: skip
-        return explained_by_stack(ranking, stacked)
-    return ranking
+        ranking = explained_by_stack(ranking, stacked)
+    return Ranking.from_json(json_safe(ranking))
 
 
-def decided_again(report: dict, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> dict:
+def decided_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> Diagnosis:
     """``report`` with its ranking (:func:`decide_again`) and its residual stage decided again."""
     ranking = decide_again(report, min_closure=min_closure)
-    gaps = {name: gap["corrected_auc"] for name, gap in report.get("rungs", {}).items()}
-    stage = stage_of_residual(report["location"], ranking["stage_scores"], gaps)
-    return {**report, "ranking": ranking, "residual_stage": stage}
+    gaps = {name: gap["corrected_auc"] for name, gap in report.rungs.items()}
+    stage = stage_of_residual(report.location.to_json(), ranking.stage_scores, gaps)
+    return dataclasses.replace(report, ranking=ranking, residual_stage=stage)

@@ -33,11 +33,12 @@ from .ladder import LadderFeatures, file_digest
 from .pipeline import SetContext, SetJob, build_set, load_run, real_ladder
 from .predictivity import predictivity
 from .report import json_safe, read_report, write_report
+from .result import Diagnosis
 
 __all__ = ["chosen_effects", "shrink"]
 
 
-def chosen_effects(result: dict, override: str | None = None) -> list[tuple[str, object]]:
+def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple[str, object]]:
     """(candidate, strength) pairs to add: ``override`` ("a=1,b=2") or the explained top."""
     if override:
         pairs = []
@@ -45,13 +46,13 @@ def chosen_effects(result: dict, override: str | None = None) -> list[tuple[str,
             name, _, value = item.partition("=")
             pairs.append((name.strip(), None if value == "" else _number(value)))
         return pairs
-    ranking = result["ranking"]
-    if not ranking["explained"]:
+    ranking = result.ranking
+    if not ranking.explained:
         raise ValueError(
             "the diagnosis named no effect (unexplained residual); pass --effects name=strength"
         )
-    top = result["candidates"][ranking["top"]]
-    return [(ranking["top"], top["best_strength"])]
+    top = result.candidates[ranking.top]
+    return [(ranking.top, top["best_strength"])]
 
 
 def _number(text: str):
@@ -139,38 +140,38 @@ def shrink(
 
     report_dir = Path(report_dir)
     result = read_report(report_dir, "--report")
-    inputs = result["inputs"]
+    inputs = result.inputs
     if preset != "same" and preset not in PRESETS:
         raise ValueError(f"preset must be 'same' or one of {sorted(PRESETS)}, got {preset!r}")
     chosen = chosen_effects(result, effects)
-    run = Path(inputs["run"])
-    train_spec, checkpoint = load_run(run, inputs.get("data_dir"))
+    run = Path(inputs.run)
+    train_spec, checkpoint = load_run(run, inputs.data_dir)
     run_config = _run_config(run)  # checked before any data is generated
     size = train_spec.preset if preset == "same" else PRESETS[preset]
     retrain_spec = _apply(dataclasses.replace(train_spec, preset=size), chosen)
     out = report_dir / "shrink"
     data = out / "data"
-    generate_dataset(retrain_spec, data, n_jobs=n_jobs, mesh_cache=inputs["mesh_cache"])
+    generate_dataset(retrain_spec, data, n_jobs=n_jobs, mesh_cache=inputs.mesh_cache)
     after_ckpt = _fine_tune(run_config, data, checkpoint, out / "train", epochs)
 
-    clip_len, clip_stride = inputs["clip_len"], inputs["clip_stride"]
-    real_dir = Path(inputs["real_dir"])
+    clip_len, clip_stride = inputs.clip_len, inputs.clip_stride
+    real_dir = Path(inputs.real_dir)
     before = _correlations(load_classifier(checkpoint), real_dir, out / "before", train_spec,
                            clip_len, clip_stride)  # fmt: skip
     after = _correlations(load_classifier(after_ckpt), real_dir, out / "after", train_spec,
                           clip_len, clip_stride)  # fmt: skip
 
     # The gap after: S with the effect vs R, both seen by the fine-tuned network.
-    nominal = DatasetSpec.from_json(inputs["nominal_spec"])
+    nominal = DatasetSpec.from_json(inputs.nominal_spec)
     context = SetContext(
-        box=tuple(inputs["box"]), checkpoint=str(after_ckpt),
-        checkpoint_digest=file_digest(after_ckpt), mesh_cache=inputs["mesh_cache"],
-        cache_dir=inputs["cache_dir"], clip_len=clip_len, clip_stride=clip_stride,
-        device=inputs["device"],
+        box=tuple(inputs.box), checkpoint=str(after_ckpt),
+        checkpoint_digest=file_digest(after_ckpt), mesh_cache=inputs.mesh_cache,
+        cache_dir=inputs.cache_dir, clip_len=clip_len, clip_stride=clip_stride,
+        device=inputs.device,
     )  # fmt: skip
     path, _ = build_set(SetJob("S_e", _apply(nominal, chosen)), context)
     sim_after = LadderFeatures.load(Path(path))
-    budget = inputs["budget_settings"]
+    budget = inputs.budget_settings
     clips = real_clips(real_dir, size=nominal.camera.height, clip_len=clip_len,
                        clip_stride=clip_stride, fps=nominal.preset.fps,
                        max_clips_per_video=budget["clips_per_sim"])  # fmt: skip
@@ -186,15 +187,15 @@ def shrink(
     checkpoints += sorted((out / "train" / "checkpoints").glob("epoch*.ckpt"))
     cut = {"clip_len": clip_len, "clip_stride": clip_stride}
     srcc = predictivity(
-        checkpoints, simulated_clips(nominal, inputs["mesh_cache"], **cut),
-        simulated_clips(_apply(nominal, chosen), inputs["mesh_cache"], **cut), clips,
-        device=inputs["device"], seed=seed,
+        checkpoints, simulated_clips(nominal, inputs.mesh_cache, **cut),
+        simulated_clips(_apply(nominal, chosen), inputs.mesh_cache, **cut), clips,
+        device=inputs.device, seed=seed,
     )  # fmt: skip
     top = chosen[0][0]
-    predicted = result["candidates"].get(top)
+    predicted = result.candidates.get(top)
     rungs = {}
     for name, gap in gaps_after.items():
-        before_auc = result["rungs"][name]["corrected_auc"]
+        before_auc = result.rungs[name]["corrected_auc"]
         after_auc = gap.corrected_auc
         realised = None
         if before_auc and before_auc > 0 and after_auc == after_auc:
@@ -213,9 +214,9 @@ def shrink(
         "correlations": {"before": before, "after": after}, "rungs": rungs,
         "predictivity": srcc,
     }  # fmt: skip
-    result["shrink"] = json_safe(section)
+    result = dataclasses.replace(result, shrink=json_safe(section))
     write_report(result, report_dir, extra_figures=("clips.png",))
-    return result["shrink"]
+    return result.shrink
 
 
 @report_user_errors

@@ -42,7 +42,9 @@ from .candidates import candidate_library
 from .detectability import detectable_at
 from .diagnosis import OPEN_SET_MIN_CLOSURE
 from .pipeline import Budget, load_run, run_diagnosis
+from .report import read_report
 from .rescore import decided_again
+from .result import Diagnosis
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
 __all__ = [
@@ -57,15 +59,15 @@ TARGETS = {
 """The issue's targets (false attribution: at most)."""
 
 
-def _predicted_stages(result: dict) -> set[str]:
-    ranking = result["ranking"]
-    if ranking["explained"]:
-        return {result["candidates"][ranking["top"]]["stage"]}
-    text = result["residual_stage"]
+def _predicted_stages(result: Diagnosis) -> set[str]:
+    ranking = result.ranking
+    if ranking.explained:
+        return {result.candidates[ranking.top]["stage"]}
+    text = result.residual_stage
     return {s for s in ("scene", "physics", "appearance", "camera") if s in text}
 
 
-def ranks(result: dict) -> bool:
+def ranks(result: Diagnosis) -> bool:
     """Whether a diagnosis ranks its candidates at all.
 
     Not without a significant gap (no scored rungs), nor when every candidate scores 0 (S's
@@ -73,42 +75,42 @@ def ranks(result: dict) -> bool:
     test pools S and S'): the order is then the library's, and a withheld effect early in
     the library would count as a top-3 hit by chance.
     """
-    return bool(result.get("scored_rungs", True)) and any(
-        c["best_score"] != 0 for c in result["candidates"].values()
+    return bool(result.scored_rungs) and any(
+        c["best_score"] != 0 for c in result.candidates.values()
     )
 
 
-def score_set(result: dict, answer: dict) -> dict:
+def score_set(result: Diagnosis, answer: dict) -> dict:
     """One sealed set's scores (answer opened only here)."""
     truth = [e["name"] for e in answer["effects"] if e["library"]]
     stages = {e["stage"] for e in answer["effects"]}
-    ranking = result["ranking"]
-    order = ranking["ranking"]
+    ranking = result.ranking
+    order = ranking.ranking
     row = {
         "seed": answer["seed"], "kind": answer["kind"],
         "truth": [f"{e['name']}={e['strength']}" for e in answer["effects"]],
-        "predicted": ranking["top"] if ranking["explained"] else "unexplained",
+        "predicted": ranking.top if ranking.explained else "unexplained",
         "stage_correct": bool(_predicted_stages(result) & stages),
     }  # fmt: skip
-    row["detected"] = bool(result.get("scored_rungs"))
-    row["budget"] = result.get("inputs", {}).get("budget")
+    row["detected"] = bool(result.scored_rungs)
+    row["budget"] = result.inputs.budget
     if answer["kind"] == "open":
-        row["false_attribution"] = bool(ranking["explained"])
+        row["false_attribution"] = bool(ranking.explained)
         return row
-    found = result.get("detectability")
+    found = result.detectability
     if found is not None:  # reports written before the analysis existed have none
         row["truth_detectable"] = any(
             detectable_at(found[e["name"]], e["strength"])
             for e in answer["effects"] if e["library"] and e["name"] in found
         )  # fmt: skip
     ranked = ranks(result)
-    row["top1"] = bool(ranking["explained"] and ranking["top"] in truth)
+    row["top1"] = bool(ranking.explained and ranking.top in truth)
     row["top3"] = ranked and bool(set(order[:3]) & set(truth))
-    closed = [result["candidates"][n]["best_score"] for n in truth if n in result["candidates"]]
+    closed = [result.candidates[n]["best_score"] for n in truth if n in result.candidates]
     row["gap_closed"] = max(closed) if closed else None
     if row["top1"]:
-        effect = next(e for e in answer["effects"] if e["name"] == ranking["top"])
-        lo, hi = result["candidates"][ranking["top"]]["strength_interval"]
+        effect = next(e for e in answer["effects"] if e["name"] == ranking.top)
+        lo, hi = result.candidates[ranking.top]["strength_interval"]
         strength = effect["strength"]
         row["strength_in_interval"] = (
             None if lo is None or not isinstance(strength, int | float) else lo <= strength <= hi
@@ -146,7 +148,7 @@ def stability_positions(plan_size: int, count: int) -> set[int]:
     return {round(i * plan_size / count) for i in range(count)} if count else set()
 
 
-def stability_scores(results: list[dict]) -> dict:
+def stability_scores(results: list[Diagnosis]) -> dict:
     """Taus of one sealed set's diagnoses under several simulation seeds.
 
     ``kendall_tau`` and ``weighted_tau`` compare the rankings of the diagnoses that rank
@@ -154,8 +156,8 @@ def stability_scores(results: list[dict]) -> dict:
     order is the library's, so there is no ranking to compare, and it is counted in
     ``no_gap_diagnoses`` instead. ``kendall_tau_all`` keeps it, in that order.
     """
-    every = [r["ranking"]["ranking"] for r in results]
-    ranked = [r["ranking"]["ranking"] for r in results if ranks(r)]
+    every = [r.ranking.ranking for r in results]
+    ranked = [r.ranking.ranking for r in results if ranks(r)]
     out = {
         "kendall_tau_all": ranking_stability(every),
         "no_gap_diagnoses": len(every) - len(ranked),
@@ -394,14 +396,13 @@ def load_budget(name: str) -> Budget:
     return instantiate(OmegaConf.load(BUDGETS / f"{name}.yaml"))
 
 
-def _diagnosed(out_dir: Path, common: dict) -> dict:
+def _diagnosed(out_dir: Path, common: dict) -> Diagnosis:
     """The diagnosis of one sealed set: its finished report, else a fresh run.
 
     Reports are written last and whole, so a killed validation resumes set by set.
     """
-    report = out_dir / "report.json"
-    if report.is_file():
-        return json.loads(report.read_text())
+    if (out_dir / "report.json").is_file():
+        return read_report(out_dir, "reports")
     return run_diagnosis(out_dir=out_dir, **common)
 
 
@@ -544,7 +545,7 @@ def main(argv: list[str] | None = None) -> None:
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
         row = score_set(result, answer)
         if args.rescore:
-            row["replayed"] = result["ranking"]["replayed"]
+            row["replayed"] = result.ranking.replayed
         if len(reruns) > 1:
             row.update(stability_scores(reruns))
         row["minutes"] = (time.perf_counter() - start) / 60

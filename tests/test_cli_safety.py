@@ -152,7 +152,7 @@ def test_power_preview_and_validate_refuse_bad_input_in_one_line(tmp_path, capsy
     cases = [
         (power_main, [str(tmp_path / "bad.json")], "error: reports: ", "is not JSON"),
         (power_main, [str(tmp_path / "other.json")], "error: reports: ",
-         "is not a diagnosis's report.json (no real_dir)"),
+         "is not a diagnosis's report.json (report lacks 'name')"),
         (power_main, [str(tmp_path / "bad.json"), "--draws", "0,2"], "error: --draws must be",
          "got '0,2'"),
         (preview_main, [str(tmp_path / "empty"), "--out", str(tmp_path / "p")],

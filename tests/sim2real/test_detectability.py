@@ -12,6 +12,7 @@ from sim2real.detectability import (
 )
 from sim2real.ladder import LadderFeatures
 from sim2real.validate import score_set, summarise
+from tests.sim2real.reports import as_diagnosis
 
 GROUPS, CLIPS, DIM = 16, 3, 6
 
@@ -122,7 +123,7 @@ def test_validation_splits_misses_of_power_from_misses_of_identification(gap, vi
     answer = {"seed": 1, "kind": "single",
               "effects": [{"name": "visual.a", "stage": "camera", "strength": 1.2,
                            "library": True}]}  # fmt: skip
-    row = score_set(result, answer)
+    row = score_set(as_diagnosis(result), answer)
     assert row["truth_detectable"] is visible
     summary = summarise([row])
     assert summary["truth_detectable_n"] == 1
@@ -148,7 +149,7 @@ def test_a_no_gap_verdict_names_the_candidates_it_could_not_rule_out():
             "visual.sensor_noise": {**entry, "detected": [True], "verdict": "detected"},
         },
     }  # fmt: skip
-    text = verdict(result)
+    text = verdict(as_diagnosis(result))
     assert text.startswith("No gap beyond the within-domain noise floor")
     assert "27 simulations against 27" in text and "pools 54" in text
     assert "hardest to rule out: visual.specular." in text

@@ -31,6 +31,7 @@ from sim2real.diagnosis import (
     stage_of_residual,
 )
 from sim2real.ladder import LadderFeatures
+from tests.sim2real.reports import as_diagnosis
 
 GROUPS, CLIPS, DIM = 16, 3, 8
 PROJECTION = np.random.default_rng(99).normal(size=(8, 6))
@@ -594,13 +595,14 @@ def test_the_verdict_says_why_a_candidate_that_closes_the_gap_is_not_named():
             "neutral": 15.0}},
         "residual_stage": "physics or scene",
     }  # fmt: skip
+    result = as_diagnosis(result)
     text = verdict(result)
     assert "scene.wind_yaw_jitter_deg closes 93 % of the classifier gap" in text
     assert "[0.000, 22.800] holds its neutral value 15.000" in text
     assert "Unexplained residual at stage physics or scene." in text
     # A flagged top that closes little: the low closure is the reason, and its coalitions
     # are barred by the neutral value (blind round 11, set 18015).
-    result["candidates"]["scene.wind_yaw_jitter_deg"]["best_score"] = 0.41
+    result.candidates["scene.wind_yaw_jitter_deg"]["best_score"] = 0.41
     text = verdict(result)
     assert "scene.wind_yaw_jitter_deg leads with 41 % (threshold 60 %)" in text
     assert "neither it nor a coalition it leads is named" in text

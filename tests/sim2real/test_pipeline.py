@@ -5,6 +5,7 @@ reads its layers); the training data is a tiny wind spec (32 x 32 frames, mesh l
 """
 
 import csv
+import dataclasses
 import hashlib
 import json
 from pathlib import Path
@@ -22,9 +23,11 @@ from sim2real.candidates import candidate_library
 from sim2real.diagnosis import CandidateResult, rank_candidates
 from sim2real.pipeline import Budget, run_diagnosis
 from sim2real.rescore import decide_again
+from sim2real.result import Diagnosis
 from sim2real.seal import draw_answer, seal_set
 from simulator.cloth.rollout import SimSettings
 from simulator.cloth.scenes import ScenarioWind
+from tests.sim2real.reports import as_diagnosis
 
 NET = {
     "_target_": "models.components.video_nets.CNNLSTMNet",
@@ -184,51 +187,51 @@ def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_al
 def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_path):
     out = tmp_path / "report"
     result = _diagnose(world, out)
-    assert result["ranking"]["top"] == "visual.sensor_noise"
-    assert result["ranking"]["explained"]
-    assert "pixel" in result["location"]["significant"]
-    noise = result["candidates"]["visual.sensor_noise"]
+    assert result.ranking.top == "visual.sensor_noise"
+    assert result.ranking.explained
+    assert "pixel" in result.location.significant
+    noise = result.candidates["visual.sensor_noise"]
     assert noise["best_strength"] >= 2.0
     assert len(noise["strengths"]) > 3  # the grid was refined around the best strength
     for name in ("report.html", "report.md", "report.json", "rungs.png", "candidates.png",
                  "clips.png"):  # fmt: skip
         assert (out / name).stat().st_size > 0, name
-    shapley = result["shapley"]
+    shapley = result.shapley
     assert shapley is not None and "visual.sensor_noise" in shapley["players"]
     grand = "+".join(sorted(shapley["players"]))
     assert sum(shapley["values"].values()) == pytest.approx(shapley["closure"][grand])
     assert shapley["closure"][grand] >= shapley["coalitions"][grand]
     assert shapley["closure"][grand] >= noise["best_score"]
     assert set(shapley["kernel_closure"]) == set(shapley["coalitions"])
-    assert result["ranking"]["kernel_closure"] == noise["kernel_closure"] >= 0.5
-    assert not result["ranking"]["look_alike"]
-    residual = result["residual"]  # the gap tests between R and the top's best set
+    assert result.ranking.kernel_closure == noise["kernel_closure"] >= 0.5
+    assert not result.ranking.look_alike
+    residual = result.residual  # the gap tests between R and the top's best set
     assert residual["candidate"] == "visual.sensor_noise"
     assert residual["strength"] in noise["strengths"]
-    assert set(residual["p_gap"]) == set(result["rungs"]) and 0 < residual["gap_p"] <= 1
+    assert set(residual["p_gap"]) == set(result.rungs) and 0 < residual["gap_p"] <= 1
     # the gap test compared R with S and S' pooled; candidates are scored against S alone
-    pooled, alone = result["detection_rungs"]["pixel"], result["rungs"]["pixel"]
+    pooled, alone = result.detection_rungs["pixel"], result.rungs["pixel"]
     assert pooled["n_x"] == 2 * alone["n_x"] and pooled["groups_x"] == 2 * alone["groups_x"]
-    assert result["location"]["gap_p"] < 0.05
-    seen = result["detectability"]  # every built strength tested against S'
+    assert result.location.gap_p < 0.05
+    seen = result.detectability  # every built strength tested against S'
     assert set(seen) == set(CANDIDATES)
     assert seen["visual.sensor_noise"]["strengths"] == noise["strengths"]
     assert seen["visual.sensor_noise"]["detected"][-1]  # the strongest noise shows, sim vs sim
     assert "What the gap test can see" in (out / "report.md").read_text()
-    saved = json.loads((out / "report.json").read_text())
-    assert saved["ranking"]["top"] == "visual.sensor_noise"
+    saved = Diagnosis.from_json(json.loads((out / "report.json").read_text()))
+    assert saved.ranking.top == "visual.sensor_noise"
     again = decide_again(saved)  # the stored closures, decided again by the same rules
-    assert again.pop("replayed") and again == saved["ranking"]
+    assert again.replayed and dataclasses.replace(again, replayed=None) == saved.ranking
     assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
     assert "With visual.sensor_noise added at" in (out / "report.md").read_text().split("\n")[2]
 
     # counterfactual (b): the sealed set's sensor noise is measured and emulated on S
-    camera = result["counterfactuals"]["camera"]
+    camera = result.counterfactuals["camera"]
     noise_match = camera["matched"]["visual.sensor_noise"]
     assert noise_match["present"] and "noise" in noise_match["statistic"]
     assert camera["rungs"]["pixel"]["closure"] > 0.5
     # counterfactual (c): AdaBN on R for every layer of the net (it has batch norm)
-    norm = result["counterfactuals"]["batchnorm"]
+    norm = result.counterfactuals["batchnorm"]
     assert norm["available"] and "enc.block1" in norm["layers"]
     assert "material_score~stiffness" in norm["correlations"]["after"]
     report = (out / "report.md").read_text()
@@ -239,11 +242,11 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"])
     library = candidate_library(_spec())
     grid = set(library["visual.compression"].strengths(BUDGET.strengths))
-    new_sets = len(set(again["candidates"]["visual.compression"]["strengths"]) - grid)
-    new_sets += len(set(again["shapley"]["coalitions"]) - set(result["shapley"]["coalitions"]))
-    assert again["sets"]["built"] == new_sets
-    assert again["sets"]["cached"] == again["sets"]["total"] - 1 - new_sets
-    assert again["ranking"]["top"] == "visual.sensor_noise"
+    new_sets = len(set(again.candidates["visual.compression"]["strengths"]) - grid)
+    new_sets += len(set(again.shapley["coalitions"]) - set(result.shapley["coalitions"]))
+    assert again.sets["built"] == new_sets
+    assert again.sets["cached"] == again.sets["total"] - 1 - new_sets
+    assert again.ranking.top == "visual.sensor_noise"
 
 
 @pytest.mark.parametrize(
@@ -357,15 +360,15 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     train_entry.train(cfg)
     out = tmp_path / "report"
     result = _diagnose(world, out, candidates=["visual.sensor_noise"], run=run, data_dir=None)
-    assert result["ranking"]["top"] == "visual.sensor_noise"
+    assert result.ranking.top == "visual.sensor_noise"
     section = shrink(out, epochs=2, preset="same", n_jobs=1)
     assert section["effects"][0]["name"] == "visual.sensor_noise"
     for label in ("before", "after"):
         for target in ("stiffness", "density"):
             entry = section["correlations"][label][target]
             assert entry["count"] == 8
-    assert set(section["rungs"]) == set(result["rungs"])
-    noise = result["candidates"]["visual.sensor_noise"]
+    assert set(section["rungs"]) == set(result.rungs)
+    noise = result.candidates["visual.sensor_noise"]
     predicted = {**noise["closure"], **noise["closure_auc"]}  # the classifier's where scored
     assert section["rungs"]["pixel"]["closure_predicted"] == predicted["pixel"][noise["best"]]
     # predictivity over the run's best and last checkpoints and both fine-tuned epochs
@@ -384,7 +387,8 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
 def _merged(out: Path, report: dict, answer: Path) -> None:
     """A merged validation folder holding set 1's finished report and its answer."""
     (out / "reports" / "set1").mkdir(parents=True)
-    (out / "reports" / "set1" / "report.json").write_text(json.dumps(report))
+    (out / "reports" / "set1" / "report.json").write_text(
+        json.dumps(as_diagnosis(report).to_json()))
     (out / "answers").mkdir()
     (out / "answers" / "set1.json").write_text(answer.read_text())
 
@@ -454,7 +458,8 @@ def test_a_shard_reads_the_reruns_of_its_stability_position(world, tmp_path):
         "visual.sensor_noise", "visual.shadows", "visual.defocus_blur"]}}  # fmt: skip
     for sim_seed, stored in ((1, report), (2, swapped)):
         (out / "reports" / f"set1-sim{sim_seed}").mkdir()
-        (out / "reports" / f"set1-sim{sim_seed}" / "report.json").write_text(json.dumps(stored))
+        (out / "reports" / f"set1-sim{sim_seed}" / "report.json").write_text(
+            json.dumps(as_diagnosis(stored).to_json()))
     # plan single:3 from seed 0: --stability 2 reruns positions 0 and 2 (seeds 0 and 2), not
     # seed 1, so the finished set 1 is scored without a tau
     args = ["--kinds", "single:3", "--first-seed", "0", "--finished-only", "--run",

@@ -7,6 +7,7 @@ import math
 from sim2real.diagnosis import OPEN_SET_MARGIN, CandidateResult
 from sim2real.report import json_safe
 from sim2real.rescore import decide_again
+from tests.sim2real.reports import as_diagnosis
 
 
 def _fit(name, score, stage="camera", strengths=(1.0, 2.0)):
@@ -26,25 +27,25 @@ def _report(fits, null_score=-0.2, kernel_rungs=(), shapley=None, stacked=None):
         "candidates": {f.name: {**f.to_json(), "best": f.best} for f in fits},
         "null": null.to_json(), "ranking": ranking, "shapley": shapley, "stacked": stacked,
     }  # fmt: skip
-    return json.loads(json.dumps(json_safe(report)))  # as run_diagnosis writes it
+    return as_diagnosis(json.loads(json.dumps(json_safe(report))))  # as run_diagnosis writes it
 
 
 def _decided(report, **kwargs):
     out = decide_again(report, **kwargs)
-    replayed = out.pop("replayed")
-    return out, replayed
+    return dataclasses.replace(out, replayed=None), out.replayed
 
 
 def test_today_s_rules_give_back_the_stored_ranking_ties_and_nan_included():
     undefined = dataclasses.replace(_fit("visual.d", 0.3), mmd2={"pixel": [math.nan, 0.1]})
     fits = [_fit("visual.a", 0.0), _fit("visual.b", 0.9), _fit("visual.c", 0.0), undefined]
     report = _report(fits, kernel_rungs=["pixel"])
-    assert report["candidates"]["visual.d"]["mmd2"]["pixel"][0] is None  # JSON has no NaN
-    report["candidates"] = dict(sorted(report["candidates"].items(), reverse=True))  # as stored
+    assert report.candidates["visual.d"]["mmd2"]["pixel"][0] is None  # JSON has no NaN
+    report = dataclasses.replace(  # as stored
+        report, candidates=dict(sorted(report.candidates.items(), reverse=True)))
     again, replayed = _decided(report)
-    assert replayed and again == report["ranking"]
-    assert again["ranking"] == ["visual.b", "visual.d", "visual.a", "visual.c"]  # ties: stored
-    read = CandidateResult.from_json(report["candidates"]["visual.d"])
+    assert replayed and again == report.ranking
+    assert again.ranking == ["visual.b", "visual.d", "visual.a", "visual.c"]  # ties: stored
+    read = CandidateResult.from_json(report.candidates["visual.d"])
     assert math.isnan(read.mmd2["pixel"][0]) and read.mmd2["pixel"][1] == 0.1
     assert (read.strengths, read.closure, read.score) == (
         undefined.strengths, undefined.closure, undefined.score)
@@ -53,12 +54,12 @@ def test_today_s_rules_give_back_the_stored_ranking_ties_and_nan_included():
 def test_another_threshold_changes_only_the_open_set_decision():
     # blind round 10's 17030: frame rate closed 0.57 of an out-of-library effect's gap
     report = _report([_fit("visual.frame_rate", 0.57), _fit("visual.b", 0.1)])
-    assert not report["ranking"]["explained"]  # today's threshold, 0.6
+    assert not report.ranking.explained  # today's threshold, 0.6
     lower, replayed = _decided(report, min_closure=0.5)
-    assert replayed and lower["explained"] and lower["threshold"] == 0.5
-    assert lower["ranking"] == report["ranking"]["ranking"]
+    assert replayed and lower.explained and lower.threshold == 0.5
+    assert lower.ranking == report.ranking.ranking
     report = _report([_fit("visual.frame_rate", 0.57)], null_score=0.5)  # a noisy null draw
-    assert _decided(report, min_closure=0.5)[0]["threshold"] == 0.5 + OPEN_SET_MARGIN
+    assert _decided(report, min_closure=0.5)[0].threshold == 0.5 + OPEN_SET_MARGIN
 
 
 def test_a_stored_coalition_or_stacked_fit_is_decided_again():
@@ -66,19 +67,19 @@ def test_a_stored_coalition_or_stacked_fit_is_decided_again():
                "kernel_closure": {"visual.a+visual.b": 0.7}}  # fmt: skip
     fits = [_fit("visual.a", 0.4), _fit("visual.b", 0.3)]
     together, replayed = _decided(_report(fits, shapley=shapley))
-    assert replayed and together["explained_by"] == ["visual.a", "visual.b"]
-    assert not _decided(_report(fits, shapley=shapley), min_closure=0.7)[0]["explained"]
+    assert replayed and together.explained_by == ["visual.a", "visual.b"]
+    assert not _decided(_report(fits, shapley=shapley), min_closure=0.7)[0].explained
 
     stacked = {"leader": "visual.a", "best": "visual.b", "score": 0.9, "kernel_closure": 0.8}
     pair, replayed = _decided(_report(fits, stacked=stacked))
-    assert replayed and pair["explained_by"] == ["visual.a", "visual.b"]
-    assert pair["explained_by_score"] == 0.9 and not pair["look_alike"]
+    assert replayed and pair.explained_by == ["visual.a", "visual.b"]
+    assert pair.explained_by_score == 0.9 and not pair.look_alike
     # the stored run named a cause alone, so it never fitted a partner: not replayable
     alone = _report([_fit("visual.a", 0.55), _fit("visual.b", 0.1)])
     lower, _ = _decided(alone, min_closure=0.5)
-    assert lower["explained"]
+    assert lower.explained
     higher, replayed = _decided(alone, min_closure=0.6)
-    assert not higher["explained"] and not replayed
+    assert not higher.explained and not replayed
     # a leader below the stacked fit's least closure needs none: replayed as unexplained
     weak, replayed = _decided(_report([_fit("visual.a", 0.2)]))
-    assert not weak["explained"] and replayed
+    assert not weak.explained and replayed

@@ -1,5 +1,7 @@
 """Scoring of sealed sets: stage, top-1/top-3, strength interval, open set, Kendall tau."""
 
+import dataclasses
+
 import pytest
 
 from sim2real.validate import (
@@ -11,15 +13,17 @@ from sim2real.validate import (
     stability_scores,
     summarise,
 )
+from tests.sim2real.reports import as_diagnosis
 
 
 def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="none"):
     ranking = ranking or [top, "visual.white_balance", "physics.air_damping", "visual.shadows"]
     stages = {"visual.sensor_noise": "camera", "visual.white_balance": "camera",
               "physics.air_damping": "physics", "visual.shadows": "appearance"}  # fmt: skip
-    return {
+    return as_diagnosis({
         "ranking": {"ranking": ranking, "top": top, "explained": explained},
         "residual_stage": residual,
+        "scored_rungs": ["pixel"],  # a diagnosis that found a gap
         "candidates": {
             n: {
                 "stage": stages[n],
@@ -28,7 +32,7 @@ def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="no
             }
             for n in ranking
         },
-    }
+    })
 
 
 def _answer(name, strength=2.0, kind="single", stage="camera", library=True):
@@ -46,15 +50,16 @@ def test_a_correct_diagnosis_scores_everything():
 
 
 def test_without_a_significant_gap_nothing_counts_as_ranked():
-    result = _result("visual.sensor_noise", explained=False) | {"scored_rungs": []}
+    result = dataclasses.replace(_result("visual.sensor_noise", explained=False), scored_rungs=[])
     row = score_set(result, _answer("visual.sensor_noise"))
     assert not row["top1"] and not row["top3"]
 
 
 def test_a_gap_whose_candidates_all_score_zero_ranks_nothing():
     # S's own classifier gap at its floor: every score 0, the order is the library's
-    result = _result("visual.sensor_noise", explained=False) | {"scored_rungs": ["pixel"]}
-    for entry in result["candidates"].values():
+    result = dataclasses.replace(_result("visual.sensor_noise", explained=False),
+                                 scored_rungs=["pixel"])
+    for entry in result.candidates.values():
         entry["best_score"] = 0.0
     row = score_set(result, _answer("visual.sensor_noise"))
     assert not row["top3"] and row["detected"]
@@ -96,9 +101,9 @@ def test_a_diagnosis_without_a_gap_ranks_nothing_and_is_left_out_of_the_tau():
     order, swapped = list("abcdef"), list("abcdfe")
     library = sorted(order, reverse=True)  # a no-gap diagnosis lists the library's order
     scored = {n: {"best_score": 0.1 * i} for i, n in enumerate(order)}
-    found = [{"ranking": {"ranking": r}, "scored_rungs": ["motion"], "candidates": scored}
-             for r in (order, swapped)]  # fmt: skip
-    none = {"ranking": {"ranking": library}, "scored_rungs": [], "candidates": scored}
+    found = [as_diagnosis({"ranking": {"ranking": r}, "scored_rungs": ["motion"],
+                           "candidates": scored}) for r in (order, swapped)]  # fmt: skip
+    none = as_diagnosis({"ranking": {"ranking": library}, "scored_rungs": [], "candidates": scored})
     scores = stability_scores([found[0], none, found[1]])
     assert scores["no_gap_diagnoses"] == 1
     assert scores["kendall_tau"] == pytest.approx(ranking_stability([order, swapped]))
@@ -127,12 +132,11 @@ def test_weighted_tau_counts_swaps_at_the_top_more_than_at_the_bottom():
 
 
 def test_the_summary_counts_detection_and_top1_where_a_gap_was_found():
-    hit = score_set(_result("visual.sensor_noise") | {"scored_rungs": ["pixel"]},
-                    _answer("visual.sensor_noise"))  # fmt: skip
-    missed = score_set(_result("visual.sensor_noise", explained=False) | {"scored_rungs": []},
-                       _answer("visual.sensor_noise"))  # fmt: skip
-    open_set = score_set(_result("visual.sensor_noise") | {"scored_rungs": ["pixel"]},
-                         _answer("barrel_distortion", kind="open", library=False))  # fmt: skip
+    gap = dataclasses.replace(_result("visual.sensor_noise"), scored_rungs=["pixel"])
+    none = dataclasses.replace(_result("visual.sensor_noise", explained=False), scored_rungs=[])
+    hit = score_set(gap, _answer("visual.sensor_noise"))
+    missed = score_set(none, _answer("visual.sensor_noise"))
+    open_set = score_set(gap, _answer("barrel_distortion", kind="open", library=False))
     summary = summarise([hit, missed, open_set])  # an open set has no effect to rank
     assert summary["detected"] == 0.5 and summary["detected_n"] == 2
     assert summary["top1_detected"] == 1.0 and summary["top1_detected_n"] == 1

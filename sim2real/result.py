@@ -1,0 +1,258 @@
+"""A diagnosis as a typed value: the one place where the shape of ``report.json`` is defined.
+
+:func:`sim2real.pipeline.run_diagnosis` returns a :class:`Diagnosis`; its :meth:`to_json` is
+what ``report.json`` holds, and :meth:`Diagnosis.from_json` reads a stored report back for the
+commands that work on finished diagnoses (the report writer, validation, rescoring, shrinking,
+the power study). The steps the readers decide on (where the gap lies, which candidate is
+named) are typed (:class:`Location`, :class:`Ranking`, :class:`DiagnosisInputs`); the
+per-rung and per-candidate tables keep their JSON form (``Gap.to_json``,
+``CandidateResult.to_json``), documented where they are made. Keys a newer or older report
+holds that this version does not know are kept (``extra``), so a report round-trips
+unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+__all__ = ["Diagnosis", "DiagnosisInputs", "Location", "Ranking"]
+
+
+def _fields(cls) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls) if f.name != "extra"]
+
+
+def _split(cls, data: Mapping[str, Any], what: str) -> tuple[dict, dict]:
+    """``data`` as the constructor's known fields and the rest."""
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{what} must be a mapping, got {type(data).__name__}")
+    names = set(_fields(cls))
+    known = {k: v for k, v in data.items() if k in names}
+    missing = [f.name for f in dataclasses.fields(cls)
+               if f.name in names and f.name not in known
+               and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]  # fmt: skip
+    if missing:
+        raise ValueError(f"{what} lacks {missing[0]!r}")
+    return known, {k: v for k, v in data.items() if k not in names}
+
+
+@dataclasses.dataclass(frozen=True)
+class Location:
+    """Is there a gap, and on which rungs (:func:`sim2real.diagnosis.localise`)."""
+
+    alpha: float
+    """Family-wise level of the gap test."""
+    gap_p: float
+    """Harmonic-mean p-value over every rung's tests (R against S and S' pooled)."""
+    threshold: float
+    """Bonferroni level over the rungs (``alpha`` / rung count)."""
+    significant: list[str]
+    """Rungs that show the gap (a test below alpha, a statistic above its floor)."""
+    bonferroni: list[str]
+    """Rungs that also pass Bonferroni on their own."""
+    first_significant_layer: str | None
+    """The first network layer that shows the gap."""
+    jump_layer: str | None
+    """The network layer with the largest rise in floor-corrected AUC."""
+    jump_rise: float | None
+    """That rise."""
+    extra: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Location:
+        """Read the ``location`` section of a report."""
+        known, extra = _split(cls, data, "location")
+        return cls(**known, extra=extra)
+
+    def to_json(self) -> dict:
+        """The ``location`` section of a report."""
+        return {**self.extra, **{k: getattr(self, k) for k in _fields(type(self))}}
+
+
+_EXPLAINED_BY = ("explained_by", "explained_by_score", "explained_by_kernel_closure")
+
+
+@dataclasses.dataclass(frozen=True)
+class Ranking:
+    """The candidates in order and whether the top one is named the cause.
+
+    Made by :func:`sim2real.diagnosis.rank_candidates`; a coalition or a stacked pair that
+    explains the gap with the top candidate sets ``explained_by``.
+    """
+
+    ranking: list[str]
+    """Candidate names, best first."""
+    threshold: float
+    """The least classifier closure that names a cause: max(0.6, S' + 0.15)."""
+    null_score: float
+    """The closure of a fresh nominal draw S' (chance)."""
+    explained: bool
+    """Whether a cause is named (the top candidate, or ``explained_by``)."""
+    top: str | None
+    """The best candidate."""
+    kernel_rungs: list[str]
+    """The scored rungs with a kernel gap: where the kernel check measures."""
+    kernel_closure: float | None
+    """The top candidate's kernel closure at the strength that confirms it."""
+    kernel_strength: Any
+    """That strength."""
+    kernel_threshold: float
+    """The least kernel closure that confirms a cause."""
+    look_alike: bool
+    """The top candidate closes the classifier gap but not the kernel distance."""
+    neutral_in_interval: bool
+    """The top candidate's interval holds its neutral strength (not named)."""
+    confusable_with_top: list[str]
+    """Candidates within 0.1 of the top."""
+    stage_scores: dict[str, float | None]
+    """The best closure of each stage's candidates."""
+    explained_by: list[str] | None = None
+    """The candidates that explain the gap together (a coalition or a stacked pair)."""
+    explained_by_score: float | None = None
+    """Their joint closure."""
+    explained_by_kernel_closure: float | None = None
+    """Their joint kernel closure."""
+    replayed: bool | None = None
+    """Set by a rescoring: whether every step could be decided again from stored closures."""
+    extra: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Ranking:
+        """Read the ``ranking`` section of a report."""
+        known, extra = _split(cls, data, "ranking")
+        return cls(**known, extra=extra)
+
+    def to_json(self) -> dict:
+        """The ``ranking`` section of a report (optional keys only where set)."""
+        out = {**self.extra}
+        for name in _fields(type(self)):
+            value = getattr(self, name)
+            if name in _EXPLAINED_BY and self.explained_by is None:
+                continue
+            if name == "replayed" and value is None:
+                continue
+            out[name] = value
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnosisInputs:
+    """What a diagnosis was run on, and how: enough to rebuild any of its sets."""
+
+    real_dir: str
+    run: str
+    checkpoint: str
+    data_dir: str | None
+    mesh_cache: str
+    cache_dir: str
+    clip_len: int
+    clip_stride: int
+    real_videos: int
+    real_clips: int
+    real_skipped: list[str]
+    sim_clips: int
+    sim_groups: int
+    budget: str
+    budget_settings: dict
+    box: list[int]
+    training_spec_key: str
+    nominal_spec: dict
+    alpha: float
+    seed: int
+    sim_seed: int
+    device: str
+    extra: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> DiagnosisInputs:
+        """Read the ``inputs`` section of a report."""
+        known, extra = _split(cls, data, "inputs")
+        return cls(**known, extra=extra)
+
+    def to_json(self) -> dict:
+        """The ``inputs`` section of a report."""
+        return {**self.extra, **{k: getattr(self, k) for k in _fields(type(self))}}
+
+    @property
+    def real_path(self) -> Path:
+        """The real footage folder."""
+        return Path(self.real_dir)
+
+
+_TYPED = {"location": Location, "ranking": Ranking, "inputs": DiagnosisInputs}
+
+
+@dataclasses.dataclass(frozen=True)
+class Diagnosis:
+    """A finished diagnosis: every section of ``report.json``."""
+
+    name: str
+    inputs: DiagnosisInputs
+    rungs: dict[str, dict]
+    """Per rung, R against S: ``Gap.to_json`` (MMD², AUC, tests, intervals, floors)."""
+    detection_rungs: dict[str, dict]
+    """Per rung, R against S and S' pooled (the gap test)."""
+    location: Location
+    scored_rungs: list[str]
+    """The rungs candidates are scored on."""
+    reference_auc: dict[str, float]
+    """S against R's domain-classifier AUC on each scored rung."""
+    reference_classifier: dict
+    """The scored rungs' AUC, divergence and which are saturated."""
+    candidates: dict[str, dict]
+    """Per candidate: ``CandidateResult.to_json`` with ``best`` and ``kernel_closure``."""
+    null: dict
+    """The fresh nominal draw S' scored as a candidate (chance)."""
+    ranking: Ranking
+    residual: dict | None
+    """The gap tests between R and the top candidate's best set."""
+    shapley: dict | None
+    """Coalitions of the best candidates: closures and Shapley values."""
+    stacked: dict | None
+    """The stacked fit on the leader, when it ran."""
+    counterfactuals: dict
+    """The stage swaps: R's camera on S, batch-norm statistics re-estimated on R."""
+    residual_stage: str
+    """Where an unexplained gap lies, in words."""
+    detectability: dict
+    """Per candidate and strength: whether the gap test picks it up against S'."""
+    probes: dict
+    """Per rung: the class probe's transfer to R."""
+    sets: dict[str, int]
+    """Candidate sets built and read from the cache."""
+    timing: dict[str, float]
+    """Seconds per step."""
+    shrink: dict | None = None
+    """Section 3, added by ``sim2real.shrink``."""
+    extra: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Diagnosis:
+        """Read a stored ``report.json``.
+
+        Raises:
+            ValueError: naming the first missing or malformed section.
+        """
+        known, extra = _split(cls, data, "report")
+        for name, kind in _TYPED.items():
+            known[name] = kind.from_json(known[name])
+        return cls(**known, extra=extra)
+
+    def to_json(self) -> dict:
+        """What ``report.json`` holds (before ``json_safe``)."""
+        out = {**self.extra}
+        for name in _fields(type(self)):
+            value = getattr(self, name)
+            if name == "shrink" and value is None:
+                continue
+            out[name] = value.to_json() if name in _TYPED else value
+        return out
+
+    @property
+    def top(self) -> dict | None:
+        """The top candidate's entry of :attr:`candidates`."""
+        return None if self.ranking.top is None else self.candidates[self.ranking.top]
