@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 __all__ = ["Diagnosis", "DiagnosisInputs", "Location", "Ranking"]
 
@@ -40,8 +40,25 @@ def _split(cls, data: Mapping[str, Any], what: str) -> tuple[dict, dict]:
     return known, {k: v for k, v in data.items() if k not in names}
 
 
+class _Section:
+    """A section of a report: its known keys as typed fields, the rest kept in ``extra``."""
+
+    section: ClassVar[str]
+    extra: dict
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]):
+        """Read this section of a report."""
+        known, extra = _split(cls, data, cls.section)
+        return cls(**known, extra=extra)
+
+    def to_json(self) -> dict:
+        """This section of a report."""
+        return {**self.extra, **{k: getattr(self, k) for k in _fields(type(self))}}
+
+
 @dataclasses.dataclass(frozen=True)
-class Location:
+class Location(_Section):
     """Is there a gap, and on which rungs (:func:`sim2real.diagnosis.localise`)."""
 
     alpha: float
@@ -61,23 +78,14 @@ class Location:
     jump_rise: float | None
     """That rise."""
     extra: dict = dataclasses.field(default_factory=dict)
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> Location:
-        """Read the ``location`` section of a report."""
-        known, extra = _split(cls, data, "location")
-        return cls(**known, extra=extra)
-
-    def to_json(self) -> dict:
-        """The ``location`` section of a report."""
-        return {**self.extra, **{k: getattr(self, k) for k in _fields(type(self))}}
+    section: ClassVar[str] = "location"
 
 
 _EXPLAINED_BY = ("explained_by", "explained_by_score", "explained_by_kernel_closure")
 
 
 @dataclasses.dataclass(frozen=True)
-class Ranking:
+class Ranking(_Section):
     """The candidates in order and whether the top one is named the cause.
 
     Made by :func:`sim2real.diagnosis.rank_candidates`; a coalition or a stacked pair that
@@ -119,12 +127,7 @@ class Ranking:
     replayed: bool | None = None
     """Set by a rescoring: whether every step could be decided again from stored closures."""
     extra: dict = dataclasses.field(default_factory=dict)
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> Ranking:
-        """Read the ``ranking`` section of a report."""
-        known, extra = _split(cls, data, "ranking")
-        return cls(**known, extra=extra)
+    section: ClassVar[str] = "ranking"
 
     def to_json(self) -> dict:
         """The ``ranking`` section of a report (optional keys only where set)."""
@@ -140,7 +143,7 @@ class Ranking:
 
 
 @dataclasses.dataclass(frozen=True)
-class DiagnosisInputs:
+class DiagnosisInputs(_Section):
     """What a diagnosis was run on, and how: enough to rebuild any of its sets."""
 
     real_dir: str
@@ -166,16 +169,7 @@ class DiagnosisInputs:
     sim_seed: int
     device: str
     extra: dict = dataclasses.field(default_factory=dict)
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> DiagnosisInputs:
-        """Read the ``inputs`` section of a report."""
-        known, extra = _split(cls, data, "inputs")
-        return cls(**known, extra=extra)
-
-    def to_json(self) -> dict:
-        """The ``inputs`` section of a report."""
-        return {**self.extra, **{k: getattr(self, k) for k in _fields(type(self))}}
+    section: ClassVar[str] = "inputs"
 
     @property
     def real_path(self) -> Path:
