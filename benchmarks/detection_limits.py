@@ -7,13 +7,13 @@ A sealed set whose withheld effect leaves no trace in the footage cannot be iden
 diagnosis; the validation counts it as a miss all the same. This measures, for the effects the
 blind rounds never found, whether that is the footage's limit or the diagnosis's:
 
-1. For each seed, the *twin*: a sealed set (``sim2real.seal``: its nuisances, materials,
+1. For each seed, the *twin*: a sealed set (``sim2real.study.seal``: its nuisances, materials,
    simulations, textures and camera shift) with no withheld effect.
 2. For each ``--effect``, the same set with that effect planted at that strength: everything
    else is the twin's, so the two differ by the effect alone.
 3. The first twin is diagnosed as real footage (``sim2real.diagnose``'s candidate search;
    this builds the nominal draws S and S' and fixes the cloth box). Every set is then put
-   through the diagnosis's gap test (R against S and S' pooled, :func:`sim2real.power.
+   through the diagnosis's gap test (R against S and S' pooled, :func:`sim2real.study.power.
    pooled_detection`: its combined p-value and the rungs whose own tests pass), and each
    planted set is compared with its twin: whether its frames equal the twin's bit for bit
    (an inert effect), and its **effect size**: on every feature of every rung, the mean
@@ -248,9 +248,9 @@ def main(argv: list[str] | None = None) -> None:
     use_process_threads(1)
     from sim2real.candidates import candidate_library
     from sim2real.pipeline import load_run
-    from sim2real.power import nominal_draws, pooled_detection, report_real_features
-    from sim2real.seal import seal_set
-    from sim2real.validate import _diagnosed, load_budget
+    from sim2real.study.power import nominal_draws, pooled_detection, report_real_features
+    from sim2real.study.seal import seal_set
+    from sim2real.study.validate import _diagnosed, load_budget
 
     try:
         budget = load_budget(args.budget)

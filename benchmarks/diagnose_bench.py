@@ -4,7 +4,7 @@
 
 1. Builds the training data's spec exactly as ``python -m datasets.generate preset=full
    level=1`` would (only its ``spec.json`` is needed: the diagnosis never reads the shards).
-2. Seals a pseudo-real set of ``--videos`` videos (``sim2real.seal``; its time is reported
+2. Seals a pseudo-real set of ``--videos`` videos (``sim2real.study.seal``; its time is reported
    apart: it stands in for footage the user already has).
 3. Runs the diagnosis with every candidate of the library on a fresh cache and reports its
    minutes split into reading the real set, generating the simulated sets (simulation +
@@ -62,7 +62,7 @@ def main() -> None:
     use_process_threads(1)
     from datasets.manifest import write_json
     from sim2real.pipeline import Budget, run_diagnosis
-    from sim2real.seal import seal_set
+    from sim2real.study.seal import seal_set
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.work or tmp)

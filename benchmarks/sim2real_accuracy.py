@@ -1,9 +1,9 @@
 """The sim-to-real diagnosis's measured accuracy: one current table from the results ledger.
 
 Reads the blind validation rounds that ran the current diagnosis from the ledger
-(``reports/sim2real/rounds/validation_round<N>.json``, written by ``sim2real.validate``),
+(``reports/sim2real/rounds/validation_round<N>.json``, written by ``sim2real.study.validate``),
 scores each round and all of them pooled with the validation's own summary
-(:func:`sim2real.validate.summarise`), and writes the table into ``docs/sim2real.md`` between
+(:func:`sim2real.study.validate.summarise`), and writes the table into ``docs/sim2real.md`` between
 its two marker comments. Rerun it when a round is added to the ledger; a test checks that the
 page holds what the ledger gives.
 
@@ -19,7 +19,7 @@ from pathlib import Path
 from common.commands import report_user_errors
 from common.errors import InputError
 from common.files import atomic_write_bytes
-from sim2real.validate import summarise
+from sim2real.study.validate import summarise
 
 ROOT = Path(__file__).resolve().parents[1]
 LEDGER = ROOT / "reports" / "sim2real" / "rounds"

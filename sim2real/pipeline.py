@@ -78,7 +78,7 @@ class Budget:
     training span (:func:`sim2real.domains.prior_materials`)."""
     sims_per_class: int = 6
     """Simulations per class of the sub-grid (the quick budget's 9 x 6 = 54). Doubled from 3
-    after a power study (``python -m sim2real.power``): on the validation's sets whose effect
+    after a power study (``python -m sim2real.study.power``): on the validation's sets whose effect
     left no gap, pooling more nominal draws found the gap of most of them, so the limit was
     the number of simulations, not of real videos (docs/sim2real.md)."""
     clips_per_sim: int = 3

@@ -143,8 +143,8 @@ def test_killing_a_parallel_generation_leaves_no_process_behind(tmp_path):
 
 def test_power_preview_and_validate_refuse_bad_input_in_one_line(tmp_path, capsys):
     from datasets.preview import main as preview_main
-    from sim2real.power import main as power_main
-    from sim2real.validate import main as validate_main
+    from sim2real.study.power import main as power_main
+    from sim2real.study.validate import main as validate_main
 
     (tmp_path / "bad.json").write_text("{not json")
     (tmp_path / "other.json").write_text(json.dumps({"inputs": {"run": "x"}}))

@@ -79,3 +79,16 @@ def test_no_package_imports_the_train_script():
         if pattern.search(path.read_text())
     ]
     assert offenders == []
+
+
+def test_study_contract_lists_every_module_of_the_diagnosis():
+    """A new module of the diagnosis is under the contract that keeps the study out of it."""
+    import pkgutil
+    import tomllib
+
+    import sim2real
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    study = next(c for c in contracts["contracts"] if "validation study" in c["name"])
+    modules = {m.name for m in pkgutil.iter_modules(sim2real.__path__)} - {"study"}
+    assert {s.removeprefix("sim2real.") for s in study["source_modules"]} == modules

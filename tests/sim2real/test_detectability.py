@@ -11,7 +11,7 @@ from sim2real.detectability import (
     is_inert,
 )
 from sim2real.ladder import LadderFeatures
-from sim2real.validate import score_set, summarise
+from sim2real.study.validate import score_set, summarise
 from tests.sim2real.reports import as_diagnosis
 
 GROUPS, CLIPS, DIM = 16, 3, 6

@@ -22,9 +22,9 @@ from render.camera import CameraSpec
 from sim2real.candidates import candidate_library
 from sim2real.diagnosis import CandidateResult, rank_candidates
 from sim2real.pipeline import Budget, run_diagnosis
-from sim2real.rescore import decide_again
 from sim2real.result import Diagnosis
-from sim2real.seal import draw_answer, seal_set
+from sim2real.study.rescore import decide_again
+from sim2real.study.seal import draw_answer, seal_set
 from simulator.cloth.rollout import SimSettings
 from simulator.cloth.scenes import ScenarioWind
 from tests.sim2real.reports import as_diagnosis
@@ -326,7 +326,7 @@ def test_command_lines_compose_and_fail_with_one_line(tmp_path):
     )  # fmt: skip
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1].startswith("error: run: ")
-    for module in ("sim2real.seal", "sim2real.validate"):
+    for module in ("sim2real.study.seal", "sim2real.study.validate"):
         done = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True,
                               text=True, timeout=300)  # fmt: skip
         assert done.returncode == 0 and "usage:" in done.stdout
@@ -394,7 +394,7 @@ def _merged(out: Path, report: dict, answer: Path) -> None:
 
 
 def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_path, capsys):
-    from sim2real.validate import main as validate
+    from sim2real.study.validate import main as validate
 
     root, out = world["root"], tmp_path / "merged"
     report = {
@@ -442,7 +442,7 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
 
 
 def test_a_shard_reads_the_reruns_of_its_stability_position(world, tmp_path):
-    from sim2real.validate import main as validate
+    from sim2real.study.validate import main as validate
 
     root, out = world["root"], tmp_path / "merged"
     report = {
@@ -475,7 +475,7 @@ def test_a_shard_reads_the_reruns_of_its_stability_position(world, tmp_path):
 
 
 def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_path, capsys):
-    from sim2real.validate import main as validate
+    from sim2real.study.validate import main as validate
 
     root, out = world["root"], tmp_path / "merged"
     fit = CandidateResult("visual.sensor_noise", "camera", (2.0, 6.0), {"pixel": [0.1, 0.0]},

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sim2real.ladder import LadderFeatures
-from sim2real.power import pooled_detection
+from sim2real.study.power import pooled_detection
 
 CLIPS, DIM = 3, 4
 

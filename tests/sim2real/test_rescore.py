@@ -6,7 +6,7 @@ import math
 
 from sim2real.diagnosis import OPEN_SET_MARGIN, CandidateResult
 from sim2real.report import json_safe
-from sim2real.rescore import decide_again
+from sim2real.study.rescore import decide_again
 from tests.sim2real.reports import as_diagnosis
 
 

@@ -11,7 +11,7 @@ from datasets.plan import SimulationPlan
 from datasets.spec import DatasetSpec, SizePreset
 from render.camera import CameraSpec
 from sim2real.candidates import candidate_library
-from sim2real.open_set import (
+from sim2real.study.open_set import (
     OPEN_SET_EFFECTS,
     apply_exposure_flicker,
     apply_tone_curve,
@@ -20,7 +20,7 @@ from sim2real.open_set import (
     flicker_frequency,
     render_sealed_video,
 )
-from sim2real.seal import draw_answer
+from sim2real.study.seal import draw_answer
 from simulator.cloth.material import BASIS_MATERIAL, ClothMaterial, load_wang_material
 from simulator.cloth.rollout import SimSettings, simulate
 from simulator.cloth.scenes import ScenarioWind
@@ -179,7 +179,7 @@ def test_exposure_flicker_scales_whole_frames_of_the_plain_render(cloth):
 def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_path):
     # The library's rolling shutter reads the frames beside each clip; the set it writes has
     # as many frames as a plain one, and they differ from the plain ones.
-    from sim2real.seal import seal_set
+    from sim2real.study.seal import seal_set
 
     spec = cloth[0]
     written = {}

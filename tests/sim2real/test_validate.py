@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from sim2real.validate import (
+from sim2real.study.validate import (
     budget_names,
     load_budget,
     ranking_stability,
@@ -144,7 +144,7 @@ def test_the_summary_counts_detection_and_top1_where_a_gap_was_found():
 
 
 def test_a_plan_cycles_singles_through_the_library_and_numbers_seeds_in_order():
-    from sim2real.validate import set_plan
+    from sim2real.study.validate import set_plan
 
     names = ["a", "b", "c"]
     plan = set_plan("single:4,pair:2,open:1", names, 100)
@@ -160,7 +160,7 @@ def test_a_plan_cycles_singles_through_the_library_and_numbers_seeds_in_order():
 def test_a_fixed_single_effect_keeps_a_drawn_strength():
     from datasets.spec import PRESETS, DatasetSpec
     from sim2real.candidates import candidate_library
-    from sim2real.seal import draw_answer
+    from sim2real.study.seal import draw_answer
     from simulator.cloth.scenes import ScenarioWind
 
     library = candidate_library(
@@ -184,7 +184,7 @@ def test_validation_reads_the_budget_configs_that_the_diagnosis_reads():
 
 
 def test_stability_sets_are_spread_over_the_plan_so_every_kind_is_measured():
-    from sim2real.validate import set_plan
+    from sim2real.study.validate import set_plan
 
     assert stability_positions(32, 6) == {0, 5, 11, 16, 21, 27}
     assert stability_positions(32, 3) == {0, 11, 21}

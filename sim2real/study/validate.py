@@ -1,7 +1,7 @@
 """Blind check of the diagnosis on sealed sets: seal, diagnose, then open the answer and score.
 
-``python -m sim2real.validate --sets N --run RUN [--data-dir D] [--out DIR]`` seals sets
-``first_seed .. first_seed + N - 1`` (:mod:`sim2real.seal`), diagnoses each one without its
+``python -m sim2real.study.validate --sets N --run RUN [--data-dir D] [--out DIR]`` seals sets
+``first_seed .. first_seed + N - 1`` (:mod:`sim2real.study.seal`), diagnoses each one without its
 answer, and only then reads the answers and scores: stage correct, effect top-1 / top-3,
 fitted strength inside its interval, share of the floor-corrected gap closed by the true
 effect, open-set false attribution. Candidate sets do not depend on the real set, so they
@@ -11,7 +11,7 @@ sharded over processes (``--skip``, ``--sets``), each with its own ``--out``; on
 ``sets/``, ``answers/`` and ``reports/`` are merged into one folder, ``--finished-only``
 writes the table of every finished set there without sealing or diagnosing anything.
 ``--rescore`` does the same but first decides every stored diagnosis again from its
-measured closures and residual stage (:mod:`sim2real.rescore`), with today's rules or another
+measured closures and residual stage (:mod:`sim2real.study.rescore`), with today's rules or another
 ``--open-set-threshold``, and writes ``rescored.md``, ``rescored.json`` and
 ``confusion_rescored.png`` beside the blind table, which it leaves alone.
 ``--scored FILE`` carries a plan over machines: the rows of an earlier ``validation.json``
@@ -38,13 +38,13 @@ from common.errors import InputError
 from common.files import atomic_write_bytes
 from common.paths import check_output_dir
 
-from .candidates import candidate_library
-from .detectability import detectable_at
-from .diagnosis import OPEN_SET_MIN_CLOSURE
-from .pipeline import Budget, load_run, run_diagnosis
-from .report import read_report
+from ..candidates import candidate_library
+from ..detectability import detectable_at
+from ..diagnosis import OPEN_SET_MIN_CLOSURE
+from ..pipeline import Budget, load_run, run_diagnosis
+from ..report import read_report
+from ..result import Diagnosis
 from .rescore import decided_again
-from .result import Diagnosis
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
 __all__ = [
@@ -377,7 +377,7 @@ def scored_rows(paths: list[str], plan: list[tuple]) -> dict[int, dict]:
     return rows
 
 
-BUDGETS = Path(__file__).resolve().parents[1] / "configs" / "budget"
+BUDGETS = Path(__file__).resolve().parents[2] / "configs" / "budget"
 """The budget configs that ``python -m sim2real.diagnose budget=NAME`` also reads."""
 
 
@@ -409,7 +409,7 @@ def _diagnosed(out_dir: Path, common: dict) -> Diagnosis:
 @report_user_errors
 def main(argv: list[str] | None = None) -> None:
     """Command line (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m sim2real.validate",
+    parser = argparse.ArgumentParser(prog="python -m sim2real.study.validate",
                                      description=__doc__.split("\n")[0])  # fmt: skip
     parser.add_argument("--sets", type=int, required=True)
     parser.add_argument("--run", required=True, help="training run folder or checkpoint")

@@ -1,6 +1,6 @@
 """How the gap test's power grows with more nominal simulations, on diagnosed sets.
 
-``python -m sim2real.power REPORT.json [REPORT.json ...] --draws 2,4,6 [--answers DIR]``
+``python -m sim2real.study.power REPORT.json [REPORT.json ...] --draws 2,4,6 [--answers DIR]``
 re-tests stored diagnoses: for each report it pools k nominal draws (S, S' and further draws
 of the same nominal scene under other simulation seeds, built through the diagnosis's own
 cache) against the report's real clips, and gives the gap test's p-value
@@ -27,13 +27,13 @@ from common.files import atomic_write_bytes
 from common.paths import check_output_dir
 from datasets.spec import DatasetSpec
 
-from .diagnosis import localise, rung_gaps
-from .domains import real_clips
-from .ladder import LadderFeatures, file_digest
-from .pipeline import NULL_SEED_OFFSET, SetContext, SetJob, _run_jobs, real_ladder
-from .report import read_report
-from .result import Diagnosis, DiagnosisInputs
-from .rungs import hand_rung_names
+from ..diagnosis import localise, rung_gaps
+from ..domains import real_clips
+from ..ladder import LadderFeatures, file_digest
+from ..pipeline import NULL_SEED_OFFSET, SetContext, SetJob, _run_jobs, real_ladder
+from ..report import read_report
+from ..result import Diagnosis, DiagnosisInputs
+from ..rungs import hand_rung_names
 
 __all__ = ["draw_spec", "nominal_draws", "pooled_detection", "report_real_features"]
 
@@ -143,7 +143,7 @@ def _table(rows: list[dict]) -> str:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m sim2real.power",
+    parser = argparse.ArgumentParser(prog="python -m sim2real.study.power",
                                      description=__doc__.split("\n")[0])  # fmt: skip
     parser.add_argument("reports", nargs="+", help="report.json files of diagnoses")
     parser.add_argument("--draws", default="2,4,6",

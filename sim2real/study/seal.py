@@ -1,6 +1,6 @@
 """Sealed pseudo-real sets: footage from our own generator with a withheld effect.
 
-``python -m sim2real.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
+``python -m sim2real.study.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
 from the seed alone, one or two effects of the candidate library at strengths inside their
 plausible ranges (or an effect outside the library, made as a camera or the scene makes it,
 :mod:`.open_set`: barrel lens distortion, exposure flicker, a tone curve, a stronger wind),
@@ -37,7 +37,7 @@ from simulator.cloth.material import (
     load_wang_material,
 )
 
-from .candidates import Candidate, candidate_library
+from ..candidates import Candidate, candidate_library
 from .open_set import OPEN_SET_EFFECTS, render_sealed_video
 
 __all__ = ["OPEN_SET_EFFECTS", "SEAL_KINDS", "draw_answer", "seal_set"]
@@ -273,7 +273,7 @@ def _base_spec(data_dir: str | None, level: int) -> DatasetSpec:
 def main(argv: list[str] | None = None) -> None:
     """Command line: write one sealed set and print its answer file's sha256."""
     parser = argparse.ArgumentParser(
-        prog="python -m sim2real.seal", description=__doc__.split("\n")[0]
+        prog="python -m sim2real.study.seal", description=__doc__.split("\n")[0]
     )
     parser.add_argument("--seed", type=int, required=True)
     parser.add_argument("--out", required=True, help="folder to write (videos + labels.csv)")

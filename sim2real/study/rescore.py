@@ -5,7 +5,7 @@ stacked fit's) and then decides (the open-set threshold, the kernel check, the c
 and stacked-fit rules). :func:`decide_again` reruns only the second part on a stored
 ``report.json``, with today's rules or another open-set threshold, so that a change of a
 threshold can be checked on every stored sealed set in seconds and by anyone
-(``python -m sim2real.validate --rescore``). Run on a report the same code wrote, it gives
+(``python -m sim2real.study.validate --rescore``). Run on a report the same code wrote, it gives
 back the stored ranking exactly.
 
 One decision cannot be replayed: the stacked fit runs only when nothing else explains the
@@ -23,17 +23,17 @@ from __future__ import annotations
 
 import dataclasses
 
-from .diagnosis import (
+from ..diagnosis import (
     OPEN_SET_MIN_CLOSURE,
     CandidateResult,
     explains_together,
     rank_candidates,
     stage_of_residual,
 )
-from .pipeline import explained_together
-from .report import json_safe
-from .result import Diagnosis, Ranking
-from .stacking import STACK_MIN_LEADER, explained_by_stack
+from ..pipeline import explained_together
+from ..report import json_safe
+from ..result import Diagnosis, Ranking
+from ..stacking import STACK_MIN_LEADER, explained_by_stack
 
 __all__ = ["decide_again", "decided_again"]
 
