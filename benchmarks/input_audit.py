@@ -273,7 +273,7 @@ def cases(base: Path) -> list[Case]:
              "--out", "{scratch}/p"], lambda s: (s / "e").mkdir()),
         Case("input", "validate --sets 0", ["-m", "sim2real.study.validate", "--sets", "0", "--run",
              str(ckpt), "--out", "{scratch}/v"]),
-        Case("input", "shrink: no report", ["-m", "sim2real.shrink", "--report", "{scratch}"]),
+        Case("input", "shrink: no report", ["-m", "sim2real.shrink", "report={scratch}"]),
         Case("input", "labels.csv with a BOM", ev, lambda s: (real(s), _labels(
              b"\xef\xbb\xbf" + (base / "real" / "labels.csv").read_bytes())(s)), "ok"),
         Case("input", "labels.csv in latin-1", ev, lambda s: (real(s), _labels(

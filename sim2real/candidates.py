@@ -23,8 +23,10 @@ import dataclasses
 import math
 from collections.abc import Iterable
 
+import hydra
 import numpy as np
 
+from common.commands import report_user_errors
 from datasets.spec import DatasetSpec
 from render.effects import IMAGE_EFFECT_ORDER, VisualEffects
 from simulator.cloth.effects import PhysicsEffects
@@ -263,19 +265,19 @@ def select_candidates(
     ]  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> None:
-    """``python -m sim2real.candidates``: list the library for the default wind scene."""
-    import argparse
+@report_user_errors  # outside: Hydra's own errors (overrides) in one line
+@hydra.main(version_base="1.3", config_path="../configs", config_name="candidate_library")
+@report_user_errors
+def main(cfg) -> None:
+    """``python -m sim2real.candidates [motion=arm]``: list the library of a scene."""
+    from hydra.utils import instantiate
 
-    argparse.ArgumentParser(
-        prog="python -m sim2real.candidates",
-        description="List the candidate library (name, stage, field, strengths) of the "
-        "default wind scene.",
-    ).parse_args(argv)
+    from common.configs import config_errors
     from datasets.spec import PRESETS
-    from simulator.cloth.scenes import ScenarioWind
 
-    spec = DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=PRESETS["small"])
+    with config_errors():
+        scenario = instantiate(cfg.scenario)
+    spec = DatasetSpec(motion=str(cfg.motion), scenario=scenario, preset=PRESETS["small"])
     for c in candidate_library(spec).values():
         strengths = (
             "switch"

@@ -333,7 +333,7 @@ def _predictivity_lines(srcc: dict | None) -> list[str]:
 def _shrink_section(shrink: dict | None) -> list[str]:
     if shrink is None:
         return [
-            "Not measured in this run: `python -m sim2real.shrink --report <this folder>` "
+            "Not measured in this run: `python -m sim2real.shrink report=<this folder>` "
             "regenerates the training set with the fitted effect, fine-tunes and fills this in.",
             "",
         ]

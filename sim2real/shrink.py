@@ -1,26 +1,27 @@
 """How far the gap shrinks: retrain with the identified effect, measure before and after.
 
-``python -m sim2real.shrink --report outputs/sim2real/<name> [--epochs 8] [--preset small]``
+``python -m sim2real.shrink report=outputs/sim2real/<name> [epochs=8] [preset=small]``
 reads a diagnosis (``report.json``), regenerates the training data of its run with the top
 effect(s) at the fitted strength (``datasets.generation``, same scene, seeds and settings;
-``--effects name=strength,...`` overrides the choice), fine-tunes the run's model on it from
-its weights (``train.train`` with the run's own config, ``init_from`` = its checkpoint), and
-reports on the real set: Pearson and Spearman of the material score with measured stiffness
-and density before vs after, with bootstrap intervals (``models.evaluate.evaluate_real``),
-and, per rung, the floor-corrected gap before (S vs R, old network) and after (S_e vs R, new
+``effects=name=strength,...`` overrides the choice), fine-tunes the run's model on it from its
+weights (``models.training.train`` with the run's own config, ``init_from`` = its checkpoint),
+and reports on the real set: Pearson and Spearman of the material score with measured stiffness
+and density before vs after, with bootstrap intervals (``models.evaluate.evaluate_real``), and,
+per rung, the floor-corrected gap before (S vs R, old network) and after (S_e vs R, new
 network) beside the closure section 2 predicted, and the sim-to-real predictivity (SRCC,
-:mod:`sim2real.predictivity`) over the run's checkpoints and every fine-tuned epoch, with
-the nominal simulator and with the effect added. The diagnosis report is rewritten with a
-section 3.
+:mod:`sim2real.predictivity`) over the run's checkpoints and every fine-tuned epoch, with the
+nominal simulator and with the effect added. The diagnosis report is rewritten with a section
+3.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from pathlib import Path
 
-from common.checks import check_int
+import hydra
+
+from common.checks import check_choice, check_int
 from common.commands import report_user_errors
 from common.errors import InputError
 from common.paths import check_output_dir
@@ -139,7 +140,7 @@ def shrink(
     from models.material_classifier import load_classifier
 
     report_dir = Path(report_dir)
-    result = read_report(report_dir, "--report")
+    result = read_report(report_dir, "report")
     inputs = result.inputs
     if preset != "same" and preset not in PRESETS:
         raise ValueError(f"preset must be 'same' or one of {sorted(PRESETS)}, got {preset!r}")
@@ -219,36 +220,37 @@ def shrink(
     return result.shrink
 
 
-@report_user_errors
-def main(argv: list[str] | None = None) -> None:
-    """Command line (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m sim2real.shrink",
-                                     description=__doc__.split("\n")[0])  # fmt: skip
-    parser.add_argument("--report", required=True, help="a diagnosis folder (its report.json)")
-    parser.add_argument(
-        "--epochs", type=int, default=8,
-        help="fine-tuning epochs; each epoch's checkpoint joins the predictivity (SRCC) set",
-    )  # fmt: skip
-    parser.add_argument(
-        "--preset",
-        default="small",
-        help="size of the regenerated training set ('same' = the run's)",
-    )
-    parser.add_argument("--effects", help="name=strength,... instead of the diagnosis's top")
-    parser.add_argument("--n-jobs", type=int, default=2)
-    args = parser.parse_args(argv)
-    check_int(args.epochs, "--epochs", 1)
-    check_int(args.n_jobs, "--n-jobs", 1)
-    check_output_dir(args.report, "--report")  # the retrained model and data go in there
+def run(cfg) -> dict:
+    """The configured shrink (``configs/shrink.yaml``), every field checked first."""
+    from omegaconf import OmegaConf
+
+    if OmegaConf.is_missing(cfg, "report"):
+        raise InputError("report is required: give report=<a diagnosis folder>")
+    epochs = check_int(cfg.epochs, "epochs", 1)
+    n_jobs = check_int(cfg.n_jobs, "n_jobs", 1)
+    if cfg.preset != "same":
+        check_choice(cfg.preset, "preset", ["same", *sorted(PRESETS)])
+    effects = cfg.effects
+    if effects is not None and (not isinstance(effects, str) or not effects.strip()):
+        raise InputError(f"effects must be name=strength,... or null, got {effects!r}")
+    check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
-        section = shrink(args.report, epochs=args.epochs, preset=args.preset,
-                         effects=args.effects, n_jobs=args.n_jobs)  # fmt: skip
+        return shrink(cfg.report, epochs=epochs, preset=str(cfg.preset), effects=effects,
+                      n_jobs=n_jobs)  # fmt: skip
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None
+
+
+@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
+@hydra.main(version_base="1.3", config_path="../configs", config_name="shrink")
+@report_user_errors
+def main(cfg) -> None:
+    """Hydra wrapper around :func:`run`: prints the correlations before and after."""
+    section = run(cfg)
     for label in ("before", "after"):
         c = section["correlations"][label]
         print(label, {k: (v["pearson"], v["spearman"]) for k, v in c.items()})
-    print(f"report: {Path(args.report) / 'report.html'}")
+    print(f"report: {Path(cfg.report) / 'report.html'}")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 HYDRA = {
     "simulator.cloth.simulate", "datasets.generate", "apps.demo", "apps.clone",
-    "benchmarks.thesis.tissue_jobs", "sim2real.diagnose", "models.evaluate",
+    "benchmarks.thesis.tissue_jobs", "sim2real.diagnose", "models.evaluate", "sim2real.shrink",
+    "sim2real.candidates",
 }  # fmt: skip
 
 COMMANDS = [
@@ -25,7 +26,7 @@ COMMANDS = [
     "benchmarks.thread_load_bench", "benchmarks.tissue_bench", "benchmarks.train_bench",
     "benchmarks.thesis.feature_probe", "benchmarks.thesis.geometry_oracle", "datasets.preview",
     "benchmarks.thesis.table72",
-    "sim2real.candidates", "sim2real.study.power", "sim2real.study.seal", "sim2real.shrink",
+    "sim2real.study.power", "sim2real.study.seal",
     "sim2real.study.validate",
     "benchmarks.thesis.pso_benchmark", "simulator.export",
     "benchmarks.thesis.paper_table1", "benchmarks.thesis.fig73", "benchmarks.thesis.table71",
