@@ -12,22 +12,21 @@ from __future__ import annotations
 
 import os
 
-import hydra
 from omegaconf import DictConfig
 
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from models.training import train
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="configs", config_name="train")
-@report_user_errors
-def main(cfg: DictConfig) -> float | None:
+def _command(cfg: DictConfig) -> float | None:
     """Hydra wrapper around :func:`train`; returns test top-1 for sweepers."""
     # Deterministic cuBLAS for the LSTM on CUDA (set before CUDA initialises).
     os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     metrics = train(cfg)
     return metrics.get("test/acc")
+
+
+main = hydra_command(_command, config_name="train", config_path="configs")
 
 
 if __name__ == "__main__":

@@ -62,13 +62,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
-import hydra
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from apps.recording import Recording
 from common.checks import check_device, check_float, check_int, check_threads
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.configs import config_errors
 from common.errors import InputError
 from common.paths import check_output_dir
@@ -96,13 +96,12 @@ from datasets.real_video import (
     clip_starts,
 )
 from datasets.runs import RUN_HELP, TrainedRun, find_run
-from datasets.spec import DatasetSpec, SizePreset
+from datasets.spec import DatasetSpec
 from models.evaluate import check_class_count, module_grid, predict
 from models.material_classifier import MaterialClassifierModule, load_classifier
 from models.metrics import ClassGrid
 from models.scores import material_scores
 from simulator.cloth.material import WANG54, MaterialSet
-from simulator.cloth.rollout import check_recording_memory
 from simulator.threads import use_process_threads
 
 __all__ = [
@@ -373,16 +372,7 @@ def _checked(cfg: DictConfig) -> dict:
             raise InputError(f"{field} is required: give {field}=<{allowed}>")
     with config_errors():
         threads = check_threads(cfg.threads, "threads")
-    fps = check_float(cfg.fps, "fps", 0, low_open=True)
-    record_time = check_float(cfg.record_time, "record_time", 0, low_open=True)
-    lead_in = check_float(cfg.lead_in, "lead_in", 0)
-    frame_count = round(record_time * fps) + 1  # as simulator.cloth.rollout.simulate records them
-    shown = frame_count - round(lead_in * fps)
-    if frame_count < 2 or shown < 1:
-        raise InputError(
-            f"record_time must span at least one frame interval (1/fps = {1 / fps:g} s) more "
-            f"than lead_in ({lead_in:g} s), got {record_time:g} s"
-        )
+    recording = Recording.from_config(cfg)
     sheet_frames = check_int(cfg.sheet_frames, "sheet_frames", 1)
     batch_size = check_int(cfg.batch_size, "batch_size", 1)
     device = check_device(cfg.device, "device")
@@ -391,16 +381,11 @@ def _checked(cfg: DictConfig) -> dict:
         video_fps = check_float(cfg.video_fps, "video_fps", 0, low_open=True)
     max_clips = None if cfg.max_clips is None else check_int(cfg.max_clips, "max_clips", 1)
     check_output_dir(cfg.out_dir, "out_dir")
-    # One simulation per class, all in one rollout; the classes come from the prediction.
-    preset = SizePreset(
-        "clone", sims_per_class=1, clips_per_sim=1, val_sims_per_class=0, test_sims_per_class=0,
-        frames_per_clip=shown, fps=fps,
-    )  # fmt: skip
-    spec_cfg = copy.deepcopy(cfg)
+    spec_cfg = copy.deepcopy(cfg)  # the classes come from the prediction
     with open_dict(spec_cfg):
         spec_cfg.classes = None
-    spec = spec_from_config(spec_cfg, preset=preset)
-    check_recording_memory(record_time, fps, 3, spec.scenario.mesh().vert_count)  # 3 classes
+    spec = spec_from_config(spec_cfg, preset=recording.preset("clone"))
+    recording.check_memory(spec, 3)  # the predicted class and two neighbours
     if spec.camera.width != spec.camera.height:
         raise InputError(
             "render.camera.width and render.camera.height must be equal (square tiles beside "
@@ -642,12 +627,8 @@ def clone_sheet(
     return sheet
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="clone")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra wrapper around :func:`run`."""
-    run(cfg)
+main = hydra_command(run, config_name="clone")
+"""The command line: ``python -m apps.clone`` (``configs/clone.yaml``)."""
 
 
 if __name__ == "__main__":

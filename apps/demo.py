@@ -27,14 +27,13 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import hydra
 import numpy as np
 from omegaconf import DictConfig
 
-from common.checks import check_float, check_int, check_threads
-from common.commands import report_user_errors
+from apps.recording import Recording
+from common.checks import check_int, check_threads
+from common.commands import hydra_command
 from common.configs import config_errors
-from common.errors import InputError
 from common.paths import check_output_dir
 from datasets.generate import spec_from_config
 from datasets.generation import render_frames, simulate_unit
@@ -50,9 +49,8 @@ from datasets.preview import (
     write_mp4,
     write_png,
 )
-from datasets.spec import DatasetSpec, SizePreset
+from datasets.spec import DatasetSpec
 from simulator.cloth.material import class_summary
-from simulator.cloth.rollout import check_recording_memory
 from simulator.threads import use_process_threads
 
 __all__ = ["VIDEO_COLUMNS", "DemoOutputs", "class_sheet", "class_video", "run"]
@@ -86,24 +84,10 @@ def _checked(cfg: DictConfig) -> tuple[DatasetSpec, WorkUnit, dict]:
     """
     with config_errors():
         threads = check_threads(cfg.threads, "threads")
-    fps = check_float(cfg.fps, "fps", 0, low_open=True)
-    record_time = check_float(cfg.record_time, "record_time", 0, low_open=True)
-    lead_in = check_float(cfg.lead_in, "lead_in", 0)
-    frame_count = round(record_time * fps) + 1  # as simulator.cloth.rollout.simulate records them
-    shown = frame_count - round(lead_in * fps)
-    if frame_count < 2 or shown < 1:
-        raise InputError(
-            f"record_time must span at least one frame interval (1/fps = {1 / fps:g} s) more "
-            f"than lead_in ({lead_in:g} s), got {record_time:g} s"
-        )
+    recording = Recording.from_config(cfg)
     sheet_frames = check_int(cfg.sheet_frames, "sheet_frames", 1)
-    # One simulation per class, all in one rollout; nothing is held out (no splits here).
-    preset = SizePreset(
-        "demo", sims_per_class=1, clips_per_sim=1, val_sims_per_class=0, test_sims_per_class=0,
-        frames_per_clip=shown, fps=fps,
-    )  # fmt: skip
-    spec = spec_from_config(cfg, preset=preset)
-    check_recording_memory(record_time, fps, len(spec.classes), spec.scenario.mesh().vert_count)
+    spec = spec_from_config(cfg, preset=recording.preset("demo"))
+    recording.check_memory(spec, len(spec.classes))
     speeds = getattr(spec.scenario, "wind_speeds", None)
     wind_level = check_int(cfg.wind_level, "wind_level", 0, len(speeds) - 1 if speeds else None)
     (unit,) = plan_units(spec)
@@ -212,12 +196,8 @@ def _progress(desc: str, unit: str) -> Iterator[Callable[[int, int], None]]:
         bar.close()
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="demo")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra wrapper around :func:`run`."""
-    run(cfg)
+main = hydra_command(run, config_name="demo")
+"""The command line: ``python -m apps.demo`` (``configs/demo.yaml``)."""
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from typing import Any
 from .configs import register_config_resolvers
 from .errors import user_errors
 
-__all__ = ["INTERRUPTED", "report_user_errors"]
+__all__ = ["INTERRUPTED", "hydra_command", "report_user_errors"]
 
 
 INTERRUPTED = "interrupted; rerun the same command to resume"
@@ -153,3 +153,21 @@ def _close_progress_bars() -> None:
     for bar in list(getattr(tqdm.tqdm, "_instances", ())):
         with contextlib.suppress(Exception):  # a bar interrupted while it was being set up
             bar.close()
+
+
+def hydra_command(
+    task: Callable[[Any], Any], *, config_name: str, config_path: str = "../configs"
+) -> Callable[[], Any]:
+    """``task(cfg)`` as a command line, every error ending as :func:`report_user_errors` says.
+
+    Hydra composes ``config_name`` from ``config_path`` (relative to ``task``'s file); its own
+    errors (an override that does not parse, a bad run-folder name) end in one line too.
+    """
+    import hydra
+
+    @functools.wraps(task)  # Hydra finds the config folder and names the job from ``task``
+    def body(cfg):
+        return task(cfg)
+
+    compose = hydra.main(version_base="1.3", config_path=config_path, config_name=config_name)
+    return report_user_errors(compose(report_user_errors(body)))

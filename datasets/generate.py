@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import logging
 
-import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from common.checks import check_bool, check_choice, check_device, check_float, check_int
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.configs import check_node, config_errors
 from common.errors import InputError
 from common.paths import check_name, check_output_dir
@@ -157,12 +156,8 @@ def run(cfg: DictConfig):
     return generate_dataset(spec, out_dir, **fields)
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="generate")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra wrapper around :func:`run`."""
-    run(cfg)
+main = hydra_command(run, config_name="generate")
+"""The command line: ``python -m datasets.generate`` (``configs/generate.yaml``)."""
 
 
 if __name__ == "__main__":

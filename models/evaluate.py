@@ -50,7 +50,6 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-import hydra
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, TQDMProgressBar
@@ -60,7 +59,7 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
 from common.checks import check_choice, check_float, check_int
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.errors import InputError
 from common.files import atomic_write_bytes
 from common.paths import check_output_dir
@@ -706,13 +705,13 @@ def run(cfg: DictConfig) -> dict:
     return results
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="evaluate")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
+def _command(cfg: DictConfig) -> None:
     """Hydra wrapper around :func:`run`; prints where the reports are."""
     results = run(cfg)
     print(f"evaluation written to {results['out_dir']}")
+
+
+main = hydra_command(_command, config_name="evaluate")
 
 
 if __name__ == "__main__":

@@ -23,10 +23,9 @@ import dataclasses
 import math
 from collections.abc import Iterable
 
-import hydra
 import numpy as np
 
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from datasets.spec import DatasetSpec
 from render.effects import IMAGE_EFFECT_ORDER, VisualEffects
 from simulator.cloth.effects import PhysicsEffects
@@ -265,10 +264,7 @@ def select_candidates(
     ]  # fmt: skip
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="candidate_library")
-@report_user_errors
-def main(cfg) -> None:
+def _command(cfg) -> None:
     """``python -m sim2real.candidates [motion=arm]``: list the library of a scene."""
     from hydra.utils import instantiate
 
@@ -285,6 +281,9 @@ def main(cfg) -> None:
             else ", ".join(f"{s:g}" if isinstance(s, float) else str(s) for s in c.strengths(3))
         )
         print(f"{c.name:40s} {c.stage:11s} {c.param or c.field:24s} {strengths}")
+
+
+main = hydra_command(_command, config_name="candidate_library")
 
 
 if __name__ == "__main__":

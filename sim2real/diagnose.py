@@ -10,12 +10,11 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from common.checks import check_bool, check_choice, check_device, check_float, check_int
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_name, check_output_dir
 
@@ -58,10 +57,7 @@ def run(cfg: DictConfig) -> dict:
     )
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="diagnose")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
+def _command(cfg: DictConfig) -> None:
     """Hydra wrapper around :func:`run`: bad input ends with one line naming the field."""
     try:
         result = run(cfg)
@@ -70,6 +66,9 @@ def main(cfg: DictConfig) -> None:
     out = cfg.out_dir or f"outputs/sim2real/{result.name}"
     print(verdict(result))
     print(f"report: {Path(out) / 'report.html'}")
+
+
+main = hydra_command(_command, config_name="diagnose")
 
 
 if __name__ == "__main__":

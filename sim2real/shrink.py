@@ -19,10 +19,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import hydra
-
 from common.checks import check_choice, check_int
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_output_dir
 from datasets.spec import PRESETS, DatasetSpec
@@ -241,16 +239,16 @@ def run(cfg) -> dict:
         raise InputError(str(err)) from None
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../configs", config_name="shrink")
-@report_user_errors
-def main(cfg) -> None:
+def _command(cfg) -> None:
     """Hydra wrapper around :func:`run`: prints the correlations before and after."""
     section = run(cfg)
     for label in ("before", "after"):
         c = section["correlations"][label]
         print(label, {k: (v["pearson"], v["spearman"]) for k, v in c.items()})
     print(f"report: {Path(cfg.report) / 'report.html'}")
+
+
+main = hydra_command(_command, config_name="shrink")
 
 
 if __name__ == "__main__":

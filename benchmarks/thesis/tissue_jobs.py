@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import logging
 
-import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from common.checks import check_choice, check_float, check_int
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.configs import check_node
 from common.errors import InputError
 from common.files import atomic_write_bytes
@@ -79,12 +78,8 @@ def run(cfg: DictConfig):
     return instantiate(cfg.tissue_job, _convert_="all")(out)
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../../configs", config_name="tissue")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra wrapper around :func:`run`."""
-    run(cfg)
+main = hydra_command(run, config_name="tissue", config_path="../../configs")
+"""The command line: ``python -m benchmarks.thesis.tissue_jobs`` (``configs/tissue.yaml``)."""
 
 
 if __name__ == "__main__":

@@ -13,12 +13,11 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from common.checks import check_device, check_float, check_int, check_threads
-from common.commands import report_user_errors
+from common.commands import hydra_command
 from common.configs import check_node, config_errors
 from common.errors import InputError
 from common.files import staged_folder
@@ -109,12 +108,8 @@ def _export(sequence: MeshSequence, out_dir: Path, fmt: str) -> list[Path]:
     return [out_dir / p.name for p in written]
 
 
-@report_user_errors  # outside: Hydra's own errors (overrides, run folder) in one line
-@hydra.main(version_base="1.3", config_path="../../configs", config_name="simulate")
-@report_user_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra wrapper around :func:`run`."""
-    run(cfg)
+main = hydra_command(run, config_name="simulate", config_path="../../configs")
+"""The command line: ``python -m simulator.cloth.simulate`` (``configs/simulate.yaml``)."""
 
 
 if __name__ == "__main__":
