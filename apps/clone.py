@@ -99,7 +99,6 @@ from datasets.runs import RUN_HELP, TrainedRun, find_run
 from datasets.spec import DatasetSpec
 from models.evaluate import check_class_count, module_grid, predict
 from models.material_classifier import MaterialClassifierModule, load_classifier
-from models.metrics import ClassGrid
 from models.scores import material_scores
 from simulator.cloth.material import WANG54, MaterialSet
 from simulator.threads import use_process_threads
@@ -179,7 +178,7 @@ def load_checked_classifier(trained: TrainedRun) -> MaterialClassifierModule:
     """The run's classifier, refused (naming ``run``) unless it predicts its data's classes."""
     module = load_classifier(trained.checkpoint, map_location="cpu", field="run")
     try:
-        grid = ClassGrid.from_json(trained.spec.material_set.to_json())
+        grid = trained.spec.material_set.grid
         check_class_count(
             module, checkpoint=trained.checkpoint, dataset=trained.data_dir, grid=grid
         )
@@ -352,7 +351,7 @@ def comparison_classes(
         material_set: The classes' set (the run's training data's).
     """
     probs = np.asarray(probabilities, dtype=np.float64)
-    count = material_set.class_count
+    count = material_set.num_classes
     if probs.shape != (count,):
         raise ValueError(f"probabilities must have shape ({count},), got {probs.shape}")
     predicted = int(np.argmax(probs))

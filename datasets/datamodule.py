@@ -100,8 +100,8 @@ class ClothVideoDataModule(L.LightningDataModule):
             if other is not None:
                 raise ValueError(
                     f"data_dirs must share one material set (class grid): {self.data_dirs[0]} "
-                    f"has {first.name} ({first.class_count} classes), {other} has "
-                    f"{sets[other].name} ({sets[other].class_count} classes)"
+                    f"has {first.name} ({first.num_classes} classes), {other} has "
+                    f"{sets[other].name} ({sets[other].num_classes} classes)"
                 )
             self._material_set = first
         return self._material_set
@@ -109,7 +109,7 @@ class ClothVideoDataModule(L.LightningDataModule):
     @property
     def num_classes(self) -> int:
         """Classes of the material set (the classifier's outputs)."""
-        return self.material_set.class_count
+        return self.material_set.num_classes
 
     @property
     def stretch_count(self) -> int:

@@ -218,7 +218,7 @@ class DatasetSpec:
             ) from None
         if not isinstance(self.material_set, MaterialSet):
             raise ValueError(f"material_set must be a MaterialSet, got {self.material_set!r}")
-        count = self.material_set.class_count
+        count = self.material_set.num_classes
         classes = tuple(range(count)) if self.classes is None else tuple(self.classes)
         if not all(_is_integral(c) for c in classes):  # 1.7 is refused, never truncated
             raise ValueError(

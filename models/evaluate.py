@@ -62,6 +62,7 @@ from common.checks import check_choice, check_float, check_int
 from common.commands import hydra_command
 from common.errors import InputError
 from common.files import atomic_write_bytes
+from common.grid import ClassGrid
 from common.paths import check_output_dir
 from datasets.clip_dataset import ClothClipDataset
 from datasets.manifest import SPLIT_PROTOCOLS, Manifest, legacy_class_grid
@@ -72,7 +73,6 @@ from .correlation import MIN_SAMPLES, correlate
 from .material_classifier import MaterialClassifierModule, load_classifier
 from .metrics import (
     BREAKDOWNS,
-    ClassGrid,
     breakdown_metrics,
     classification_metrics,
     confusion_matrix,
@@ -111,7 +111,7 @@ def checkpoint_class_count(module: MaterialClassifierModule) -> int | None:
 
 def dataset_grid(data_dir: str | Path) -> ClassGrid:
     """The class grid of a generated dataset: its manifest's material set."""
-    return ClassGrid.from_json(Manifest.load(data_dir).material_set.to_json())
+    return Manifest.load(data_dir).material_set.grid
 
 
 def module_grid(module: MaterialClassifierModule) -> ClassGrid:

@@ -27,6 +27,7 @@ from hydra.utils import instantiate
 from torch import nn
 
 from common.errors import InputError
+from common.grid import ClassGrid
 
 from .checkpoint import (
     CHECKPOINT_HELP,
@@ -34,7 +35,7 @@ from .checkpoint import (
     checkpoint_state_dict,
     read_checkpoint,
 )
-from .metrics import ClassGrid, classification_metrics
+from .metrics import classification_metrics
 
 __all__ = [
     "ENCODER_CHECKPOINT_KEYS",
@@ -75,7 +76,7 @@ class MaterialClassifierModule(L.LightningModule):
         encoder_lr_scale: The frame encoders' learning rate as a fraction of the optimizer's
             (discriminative fine-tuning: a CNN trained beforehand keeps its features while a
             new LSTM and classifier learn at the full rate); 1 = one rate for everything.
-        class_grid: The data's class grid (:class:`~models.metrics.ClassGrid` or its JSON, e.g.
+        class_grid: The data's class grid (:class:`~common.grid.ClassGrid` or its JSON, e.g.
             the datamodule's ``class_grid``); the metrics need it. ``None``: the attached
             datamodule's, when there is one.
     """

@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from common.files import atomic_write_bytes
-
-from .metrics import ClassGrid
+from common.grid import ClassGrid
 
 __all__ = [
     "confusion_png", "markdown_table", "scatter_png", "wind_label", "write_json", "write_text",

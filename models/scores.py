@@ -1,7 +1,7 @@
 """Scalar material scores derived from class probabilities, for correlation with measurements.
 
 The classes of a material set are ``class_id = stretch_index * bend_count + bend_index`` with
-both multiplier lists increasing (the data's :class:`~models.metrics.ClassGrid`), so the class
+both multiplier lists increasing (the data's :class:`~common.grid.ClassGrid`), so the class
 id *is* a position in a stiffness ordering: stretch-major, then bend. Thesis 7.7.2.2 correlates
 the predicted class number (0..53 of its 6 x 9 grid, "the higher the number generally means the
 cloth is stiffer") with both the measured stiffness and the measured density of real fabrics;
@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import torch
 
-from .metrics import ClassGrid, grid_position
+from common.grid import ClassGrid
+
+from .metrics import grid_position
 
 __all__ = ["CORRELATED_SCORES", "SCORE_NAMES", "material_scores"]
 

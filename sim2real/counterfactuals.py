@@ -315,7 +315,6 @@ def group_scores(groups, logits: np.ndarray, stiffness, density) -> dict[str, np
     """
     import torch
 
-    from models.metrics import ClassGrid
     from models.scores import CORRELATED_SCORES, material_scores
     from simulator.cloth.material import WANG54
 
@@ -324,7 +323,7 @@ def group_scores(groups, logits: np.ndarray, stiffness, density) -> dict[str, np
     probs = torch.softmax(torch.as_tensor(logits), dim=1).numpy()
     mean = np.zeros((len(videos), probs.shape[1]))
     np.add.at(mean, rows, probs)
-    grid = ClassGrid.from_json(WANG54.to_json())  # the diagnosis's classifiers are wang54's
+    grid = WANG54.grid  # the diagnosis's classifiers are wang54's
     scores = material_scores(torch.as_tensor(mean / counts[:, None]), grid)
     out = {name: scores[name].numpy() for name in CORRELATED_SCORES}
     out["stiffness"] = np.bincount(rows, np.asarray(stiffness, dtype=float)) / counts

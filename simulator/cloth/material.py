@@ -43,6 +43,7 @@ import numpy as np
 import torch
 
 from common.errors import InputError
+from common.grid import ClassGrid
 from simulator.energies.bending import BEND_SAMPLE_CURVATURES
 from simulator.energies.membrane import STRETCH_SAMPLE_STRAIN
 from simulator.errors import MaterialError
@@ -218,31 +219,28 @@ class MaterialSet:
             object.__setattr__(self, field, numbers)
 
     @property
+    def grid(self) -> ClassGrid:
+        """The stretch x bend grid of class ids, as a classifier sees it."""
+        return ClassGrid(self.stretch_multipliers, self.bend_multipliers)
+
+    @property
     def stretch_count(self) -> int:
         """Stretch indices (rows of the grid)."""
-        return len(self.stretch_multipliers)
+        return self.grid.stretch_count
 
     @property
     def bend_count(self) -> int:
         """Bend indices (columns of the grid)."""
-        return len(self.bend_multipliers)
+        return self.grid.bend_count
 
     @property
-    def class_count(self) -> int:
+    def num_classes(self) -> int:
         """Classes: ``stretch_count * bend_count``."""
-        return self.stretch_count * self.bend_count
+        return self.grid.num_classes
 
     def to_json(self) -> dict:
         """Plain JSON: the fields and the grid's counts (a manifest's ``material_set``)."""
-        return {
-            "name": self.name,
-            "basis": self.basis,
-            "stretch_multipliers": list(self.stretch_multipliers),
-            "bend_multipliers": list(self.bend_multipliers),
-            "num_classes": self.class_count,
-            "stretch_count": self.stretch_count,
-            "bend_count": self.bend_count,
-        }
+        return {"name": self.name, "basis": self.basis, **self.grid.to_json()}
 
     @classmethod
     def from_json(cls, data: Any, field: str = "material_set") -> MaterialSet:
@@ -271,7 +269,7 @@ class MaterialSet:
 
     def multipliers(self, class_id: int) -> tuple[float, float]:
         """(stretch multiplier p, bend multiplier k) of a class id."""
-        top = self.class_count - 1
+        top = self.num_classes - 1
         if not isinstance(class_id, int | np.integer) or not 0 <= int(class_id) <= top:
             raise MaterialError(f"class_id must be an integer in [0, {top}], got {class_id!r}")
         s, b = divmod(int(class_id), self.bend_count)
@@ -329,7 +327,7 @@ class MaterialSet:
 
         ``1.0`` is class 1; ``1.7`` is refused rather than truncated to class 1.
         """
-        top = self.class_count - 1
+        top = self.num_classes - 1
         allowed = f"integer class ids in [0, {top}], e.g. {field}=[0,{top // 2},{top}]"
         if isinstance(values, str | bytes | Mapping) or not isinstance(values, Iterable):
             raise InputError(f"{field} must be a list of {allowed}; got {values!r}")

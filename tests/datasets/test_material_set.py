@@ -48,7 +48,7 @@ def test_wang54_is_the_config_and_the_module_constants():
     assert MaterialSet.from_json(node) == WANG54
     assert WANG54.stretch_multipliers == STRETCH_MULTIPLIERS
     assert WANG54.bend_multipliers == BEND_MULTIPLIERS
-    assert (WANG54.class_count, WANG54.stretch_count, WANG54.bend_count) == (54, 6, 9)
+    assert (WANG54.num_classes, WANG54.stretch_count, WANG54.bend_count) == (54, 6, 9)
     assert spec_from_config(_compose()).material_set == WANG54
     assert MaterialSet.from_json(WANG54.to_json()) == WANG54
     assert legacy_class_grid() == WANG54.to_json()

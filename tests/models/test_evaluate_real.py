@@ -14,8 +14,8 @@ from hydra import compose, initialize_config_dir
 
 import models.evaluate as evaluate
 from common.errors import InputError
+from common.grid import ClassGrid
 from datasets.manifest import legacy_class_grid
-from models.metrics import ClassGrid
 from models.report import wind_label
 from models.scores import CORRELATED_SCORES
 

@@ -5,8 +5,9 @@ import pytest
 import torch
 from scipy import stats
 
+from common.grid import ClassGrid
 from models.correlation import correlate
-from models.metrics import ClassGrid, breakdown_metrics, classification_metrics, confusion_matrix
+from models.metrics import breakdown_metrics, classification_metrics, confusion_matrix
 from models.scores import material_scores
 from simulator.cloth.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
 
