@@ -188,11 +188,14 @@ class Mannequin:
     """Named heights of the rest body [m]: waist, hip, crotch, shoulder_top, neck_point, ..."""
     torso_sections: np.ndarray
     """Torso cross-sections ``[z, width, depth]`` [m] from bottom to top, shape (S, 3)."""
+    offset: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    """Translation of the whole body from its standard place [m], shape (3,)."""
 
     @staticmethod
-    def build(shape: BodyShape | None = None) -> Mannequin:
-        """Skeleton and primitives of a body shape."""
+    def build(shape: BodyShape | None = None, offset=(0.0, 0.0, 0.0)) -> Mannequin:
+        """Skeleton and primitives of a body shape, its feet near z = 0, moved by ``offset`` [m]."""
         shape = shape or BodyShape()
+        shift = np.asarray(offset, dtype=np.float64).reshape(3)
         h = shape.height
         s = h / 1.70  # limb radii scale with size
         pelvis_z = 0.53 * h
@@ -253,7 +256,7 @@ class Mannequin:
         for side in ("r", "l"):
             sh, el, wr = j[f"shoulder_{side}"], j[f"elbow_{side}"], j[f"wrist_{side}"]
             hip, knee, ankle = j[f"hip_{side}"], j[f"knee_{side}"], j[f"ankle_{side}"]
-            hand = wr + 0.055 * h * (wr - el) / np.linalg.norm(wr - el)
+            hand = wr + 0.032 * h * (wr - el) / np.linalg.norm(wr - el)
             mid = 0.5 * (hip + knee)
             prims += [
                 _Primitive(f"shoulder_{side}", sh, el, 0.046 * s, f"upper_arm_{side}"),
@@ -273,7 +276,12 @@ class Mannequin:
             "shoulder_top": shoulder_z + yoke_r,
             "neck_point": shoulder_z + yoke_r + 0.01,
         }
-        return Mannequin(shape, rest, tuple(prims), levels, sections)
+        if np.any(shift != 0):
+            rest = rest + shift
+            prims = [dataclasses.replace(p, p0=p.p0 + shift, p1=p.p1 + shift) for p in prims]
+            levels = {k: v + float(shift[2]) for k, v in levels.items()}
+            sections = sections + np.array([shift[2], 0.0, 0.0])
+        return Mannequin(shape, rest, tuple(prims), levels, sections, shift)
 
     @property
     def capsule_count(self) -> int:

@@ -131,6 +131,9 @@ class DrapeSettings:
     """Consecutive resting steps required."""
     friction: float = 0.5
     """Coulomb coefficient between cloth and body."""
+    contact_thickness: float = 0.005
+    """Distance kept between garment vertices and the body surface [m]: vertex contact lets
+    an edge of length L sag L² / (8 R) into a limb of radius R (4 mm for 4 cm on an arm)."""
     seam_stiffness: float = SEAM_STIFFNESS
     """Seam stiffness per unit length [N/m²]."""
     self_collision: bool = False
@@ -150,7 +153,9 @@ class DrapeSettings:
     contact (they cannot be reached in a drape; the search is O(V C))."""
 
     def __post_init__(self):
-        for name in ("dt", "speed_tol", "friction", "seam_stiffness", "cg_rtol"):
+        for name in (
+            "dt", "speed_tol", "friction", "seam_stiffness", "cg_rtol", "contact_thickness"
+        ):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise InputError(f"drape.{name} must be a finite number >= 0, got {value!r}")
@@ -189,6 +194,9 @@ class DrapeResult:
     """Largest seam gap of each instance at the end [m], (B,)."""
     min_body_distance: np.ndarray
     """Smallest signed distance of a vertex to the body surface [m] (negative: inside), (B,)."""
+    failed: np.ndarray
+    """Instances whose simulation produced non-finite positions (frozen at their last finite
+    state), bool (B,)."""
     seconds: float
     """Wall time of the drape [s]."""
 
@@ -267,7 +275,7 @@ class GarmentBatch:
             *elastic,
             EnergyGravity(torch.tensor(GRAVITY, dtype=dtype)),
             seam,
-            EnergyContactCapsule(),
+            EnergyContactCapsule(thickness=settings.contact_thickness),
         ]
         if settings.self_collision:
             energies.append(EnergySelfCollision(radius=settings.self_collision_radius))
@@ -344,36 +352,81 @@ def drape(
     dtype = model.vert_mass.dtype
     pos = torch.as_tensor(np.asarray(pos0), dtype=dtype).clone()
     bsz = pos.shape[0]
-    state = SimState(pos, torch.zeros_like(pos), torch.zeros(bsz, dtype=dtype))
-    control = batch.control()
     integrator = IntegratorBackwardEuler(settings.newton())
+    control = batch.control()
     calm = np.zeros(bsz, dtype=np.int64)
     done_at = np.full(bsz, settings.max_steps, dtype=np.int64)
     speed = np.full(bsz, np.inf)
+    failed = np.zeros(bsz, dtype=bool)
+    # Instances that rest leave the batch (their rows stop costing), once a quarter has.
+    active = np.arange(bsz)
+    sub_model, sub_control = model, control
     step = 0
     for step in range(settings.max_steps):
-        state = dataclasses.replace(state, vel=torch.zeros_like(state.vel))
-        state, _ = integrator.step(model, state, control, settings.dt)
-        if not torch.isfinite(state.pos).all():
-            bad = int((~torch.isfinite(state.pos).flatten(1).all(1)).nonzero()[0, 0])
-            raise FloatingPointError(f"drape diverged: instance {bad} at step {step}")
-        speed = torch.linalg.vector_norm(state.vel, dim=-1).amax(-1).numpy()
-        resting = speed < settings.speed_tol
-        calm = np.where(resting, calm + 1, 0)
-        newly = (calm >= settings.calm_steps) & (done_at == settings.max_steps)
+        cur = pos[active]
+        state = SimState(cur, torch.zeros_like(cur), torch.zeros(len(active), dtype=dtype))
+        state, _ = integrator.step(sub_model, state, sub_control, settings.dt)
+        bad = ~torch.isfinite(state.pos).flatten(1).all(1)
+        new = torch.where(bad.view(-1, 1, 1), cur, state.pos)
+        vel = torch.where(bad.view(-1, 1, 1), torch.zeros_like(state.vel), state.vel)
+        pos[active] = new
+        failed[active] |= bad.numpy()
+        sp = torch.linalg.vector_norm(vel, dim=-1).amax(-1).numpy()
+        speed[active] = np.where(failed[active], 0.0, sp)
+        resting = speed[active] < settings.speed_tol
+        calm[active] = np.where(resting, calm[active] + 1, 0)
+        newly = active[
+            (calm[active] >= settings.calm_steps) & (done_at[active] == settings.max_steps)
+        ]
         done_at[newly] = step + 1
-        if bool((calm >= settings.calm_steps).all()):
+        still = active[done_at[active] == settings.max_steps]
+        if len(still) == 0:
             break
         if should_stop is not None and should_stop():
             break
-    converged = done_at < settings.max_steps
-    gaps = batch.seam.gaps(state.pos).amax(-1).numpy()
+        if len(still) <= 0.75 * len(active):
+            keep = np.searchsorted(active, still)
+            sub_model = _take_model(sub_model, keep)
+            sub_control = _take_control(sub_control, keep)
+            active = still
+    converged = (done_at < settings.max_steps) & ~failed
+    gaps = batch.seam.gaps(pos).amax(-1).numpy()
     caps = batch.capsules.numpy()
-    pos_np = state.pos.numpy()
+    pos_np = pos.numpy()
     min_dist = np.array(
         [capsule_distance(p, c)[0].min() for p, c in zip(pos_np, caps, strict=True)]
     )
     return DrapeResult(
-        state.pos, np.minimum(done_at, step + 1), converged, speed, gaps, min_dist,
+        pos, np.minimum(done_at, step + 1), converged, speed, gaps, min_dist, failed,
         time.perf_counter() - start,
     )  # fmt: skip
+
+
+_PER_INSTANCE = {
+    EnergyMembraneWang: ("row0", "fibres"),
+    EnergyMembranePattern: ("row0", "fibres", "rest_inv", "rest_area"),
+    EnergyBendingDihedral: ("edge_stiffness",),
+    EnergyBendingPattern: ("edge_stiffness", "rest_length", "rest_area"),
+}
+"""Fields of the garment energies that carry the batch (dimension 0)."""
+
+
+def _take_model(model: SimModel, keep: np.ndarray) -> SimModel:
+    """The model of the instances ``keep`` (indices into the batch)."""
+    idx = torch.as_tensor(keep, dtype=torch.int64)
+    energies = []
+    for e in model.energies:
+        fields = _PER_INSTANCE.get(type(e), ())
+        if isinstance(e, EnergySeam) and e.stiffness.dim() == 2:
+            fields = ("stiffness",)
+        energies.append(dataclasses.replace(e, **{f: getattr(e, f)[idx] for f in fields}))
+    return dataclasses.replace(model, energies=tuple(energies), vert_mass=model.vert_mass[idx])
+
+
+def _take_control(control: SimControl, keep: np.ndarray) -> SimControl:
+    idx = torch.as_tensor(keep, dtype=torch.int64)
+    return SimControl(
+        pin_pos=control.pin_pos[idx],
+        capsules=control.capsules[idx],
+        capsule_vel=control.capsule_vel[idx],
+    )

@@ -93,7 +93,7 @@ def _torso_wrap(pattern, body, panels: dict[str, tuple[float, float]], z_of, row
             ids, _, frac = grids[name]
             z = z_of(name, ids[j])
             s = s0 + (s1 - s0) * frac
-            xy = _loop_points(s, np.full(len(s), circ), _body_aspect(body, z))
+            xy = _loop_points(s, np.full(len(s), circ), _body_aspect(body, z)) + body.offset[:2]
             out.update({int(v): (x, y, zz) for v, (x, y), zz in zip(ids[j], xy, z, strict=True)})
     return out
 
@@ -160,7 +160,7 @@ def rest_placement(pattern: Pattern, body: Mannequin) -> np.ndarray:
 
             def centre(name, j, side=side, ids_f=ids_f):
                 z = waist_z - g["h1"] + x[ids_f[j, 0], 1]
-                return np.array([hips[side][0], 0.0, z])
+                return np.array([hips[side][0], hips[side][1], z])
 
             placed.update(
                 _limb_wrap(
@@ -190,7 +190,7 @@ def rest_placement(pattern: Pattern, body: Mannequin) -> np.ndarray:
 
             def centre(name, j, nv=nv, shoulder=shoulder, sign=sign):
                 along = g["w2"] / 2 + 0.01 + g["l1"] * (nv - j) / nv
-                return np.array([sign * along, 0.0, shoulder[2]])
+                return np.array([body.offset[0] + sign * along, shoulder[1], shoulder[2]])
 
             # Circle in the y-z plane: s = 0 at the bottom (-z), 0.25 in front (-y), 0.5 on top.
             frame = (np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
