@@ -97,6 +97,9 @@ BODY_SEARCH: tuple[tuple[str, int, float, float], ...] = (
 )  # fmt: skip
 """Joint angles the body fit searches: (joint, axis, low, high) [deg]; the others stay 0."""
 
+OUTER_GARMENTS = frozenset({"tshirt"})
+"""Garments worn over the others (the rest are inner layers)."""
+
 PRIOR_WEIGHT = 0.01
 """Weight of the body fit's prior on out-of-plane angles, per (30 deg)²."""
 
@@ -114,26 +117,24 @@ class RecoverySettings:
 
     edge_length: float = 0.05
     """Target edge length of the garment mesh [m]."""
-    swarm_size: int = 16
+    swarm_size: int = 12
     """Particles per garment swarm (*thesis*: 40); each is one instance of a batched drape."""
     rounds: int = 3
     """Alternations of Alg. 3 (*thesis*: about four)."""
-    sizing_iters: int = 5
-    material_iters: int = 3
+    sizing_iters: int = 4
+    material_iters: int = 2
     joint_rounds: int = 1
     """Alternations of Alg. 4."""
-    pose_iters: int = 3
+    pose_iters: int = 2
     pose_range_deg: float = 8.0
     """Largest change of a fitted joint angle in Alg. 4 [deg]."""
     body_swarm: int = 40
     body_iters: int = 250
     silhouette_weight: float = 0.02
     """Weight of the silhouette term (per px) in the material and pose objectives."""
-    drape_steps: int = 45
+    drape_steps: int = 30
     """Step cap of a warm-started drape (a particle's evaluation)."""
-    material_drape_steps: int = 90
-    """Step cap of a material particle's drape (from the registered pattern)."""
-    drape_speed_tol: float = 0.015
+    drape_speed_tol: float = 0.02
     """Stopping test of a particle's drape [m/s] (:class:`DrapeSettings.speed_tol`)."""
     first_drape_steps: int = 200
     """Step cap of the first drape, from the registered garment."""
@@ -145,8 +146,7 @@ class RecoverySettings:
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:
                 raise InputError(f"recovery.{name} must be an integer >= 2, got {value!r}")
         for name in ("rounds", "sizing_iters", "material_iters", "pose_iters", "body_iters",
-                     "drape_steps", "first_drape_steps", "joint_rounds",
-                     "material_drape_steps"):  # fmt: skip
+                     "drape_steps", "first_drape_steps", "joint_rounds"):  # fmt: skip
             value = getattr(self, name)
             low = 0 if name == "joint_rounds" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -442,7 +442,8 @@ class GarmentTarget:
     mask: np.ndarray
     """The garment's visible pixels, bool (H, W)."""
     dont_care: np.ndarray
-    """Pixels where the garment could be hidden (skin in front, other garments), bool (H, W)."""
+    """Pixels where the garment could be hidden (skin in front; for an inner layer also the
+    other clothes), bool (H, W)."""
     silhouette: SilhouetteTarget
     density: np.ndarray
     """Wrinkle density per region [1/m], shape (R,)."""
@@ -480,7 +481,10 @@ def garment_target(
             f"mask: the {garment.value} covers {np.count_nonzero(mask)} pixels, too few to "
             "recover it (need at least 50); give a garment mask or a larger image"
         )
-    dont_care = person & ~mask
+    # Where the garment could be hidden: behind skin (an arm in front of a shirt), and, for an
+    # inner layer, behind the other clothes; an outer layer is never behind other clothes,
+    # so a candidate that covers them there is wrong.
+    dont_care = (person & skin & ~mask) if garment.value in OUTER_GARMENTS else (person & ~mask)
     mann = body.mannequin()
     caps = mann.capsules(body.pose.angles[None])[0]
     regions = region_map(camera, caps, primitive_regions(mann, garment.value), mask)
@@ -763,12 +767,6 @@ def recover_garment(
             swarm = _swarm(lo_c, hi_c, s, rng_seed + 1000 * rnd + 1,
                            np.log10([c_best["bend"], c_best["stretch"]]))  # fmt: skip
             coords = np.repeat(topology.coords(g_best)[None], s, 0)
-            # Every particle drapes from the registered pattern, as the garment in the image
-            # did: a drape remembers its folds, and a stiff fabric started from a soft one's
-            # folds keeps some of them.
-            tick = time.perf_counter()
-            fresh = register_batch(topology, coords[:1], [g_best], ev.mannequin, angles[None])
-            timings["simulation"] += time.perf_counter() - tick
             for it in range(settings.material_iters):
                 xs = swarm.ask()
                 bend, stretch = 10 ** xs[:, 0], 10 ** xs[:, 1]
@@ -777,8 +775,8 @@ def recover_garment(
                     bend,
                     stretch,
                     np.repeat(angles[None], s, 0),
-                    np.repeat(fresh, s, 0),
-                    settings.material_drape_steps,
+                    np.repeat(x_best[None], s, 0),
+                    settings.drape_steps,
                 )
                 t = time.perf_counter()
                 sil = ev.silhouette(pos)

@@ -39,7 +39,7 @@ TINY = [
     "recovery.edge_length=0.1", "recovery.swarm_size=2", "recovery.rounds=1",
     "recovery.sizing_iters=1", "recovery.material_iters=1", "recovery.joint_rounds=1",
     "recovery.pose_iters=1", "recovery.body_swarm=4", "recovery.body_iters=3",
-    "recovery.drape_steps=6", "recovery.material_drape_steps=8",
+    "recovery.drape_steps=6",
     "recovery.first_drape_steps=12",
 ]  # fmt: skip
 
