@@ -441,8 +441,16 @@ def main() -> None:
 
     from simulator.errors import report_user_errors
 
+    def task(cfg) -> None:
+        try:
+            run(cfg)
+        except KeyboardInterrupt:
+            print("interrupted: nothing written", flush=True)
+            raise SystemExit(130) from None
+
+    task.__module__ = __name__
     hydra.main(version_base="1.3", config_path="../../configs", config_name="garment_tryon")(
-        report_user_errors(run)
+        report_user_errors(task)
     )()
 
 
