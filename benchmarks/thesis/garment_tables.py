@@ -168,6 +168,54 @@ def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dic
     }  # fmt: skip
 
 
+def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> list[dict]:
+    """Curvature K and rendered wrinkle density P of the default skirt per bend multiplier.
+
+    In pose a, under each lighting: what the material step has to work with.
+    """
+    from simulator.garment.drape import (
+        DrapeSettings,
+        GarmentBatch,
+        drape,
+        garment_material,
+        register_batch,
+    )
+    from simulator.garment.image import region_map, wrinkle_density
+    from simulator.garment.patterns import PatternTopology, build_pattern
+    from simulator.garment.recovery import _hinges
+    from simulator.garment.scenes import LIGHTINGS, POSES, pixel_size
+
+    body = Mannequin.build()
+    topo = PatternTopology.build("skirt", edge_length)
+    pattern = build_pattern("skirt", topology=topo)
+    n = len(bends)
+    angles = np.repeat(POSES["a"].angles[None], n, 0)
+    coords = np.repeat(pattern.coords[None], n, 0)
+    x0 = register_batch(topo, coords[:1], [pattern.params], body, angles[:1])
+    settings = DrapeSettings(max_steps=200)
+    caps = body.capsules(angles)
+    batch = GarmentBatch.build(topo, coords, garment_material(list(bends), [1.0] * n), caps,
+                               settings, pos_hint=np.repeat(x0, n, 0))  # fmt: skip
+    pos = drape(batch, np.repeat(x0, n, 0), settings).pos
+    regions = primitive_regions(body, "skirt")
+    vr = vertex_regions(pos[0].numpy(), caps[0], regions)
+    k = regional_curvature(pos, torch.as_tensor(topo.tri_indices),
+                           torch.as_tensor(_hinges(topo)), vr, 1)[:, 0].numpy()  # fmt: skip
+    camera = scene_camera()
+    rows = []
+    for b, bend in enumerate(bends):
+        row = {"bend": bend, "curvature": float(k[b])}
+        for light in LIGHTINGS:
+            image, _, masks = render_scene(camera, scene_light(light), caps[b],
+                                           [(pos[b].numpy(), topo.tri_indices,
+                                             GARMENT_COLORS["skirt"])])  # fmt: skip
+            rmap = region_map(camera, caps[b], regions, masks[0])
+            p, _ = wrinkle_density(image, masks[0], rmap, 1, pixel_size(camera))
+            row[f"density_{light}"] = float(p[0])
+        rows.append(row)
+    return rows
+
+
 def summarise(rows: list[dict]) -> dict:
     """The summary keys over all scenes."""
     sizing = [g["sizing_accuracy"] for r in rows for k, g in r["garments"].items()]
@@ -231,6 +279,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--edge-length", type=float, default=None, help="m (default 0.05)")
     parser.add_argument("--swarm", type=int, default=None, help="particles per swarm (16)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--probe",
+        action="store_true",
+        help="only the wrinkle probe: K and P of a skirt per bending multiplier",
+    )
     args = parser.parse_args(argv)
     use_process_threads(1, name="threads")
     if args.quick:
@@ -256,6 +309,18 @@ def main(argv: list[str] | None = None) -> dict:
 
     def log(text: str) -> None:
         print(text, flush=True)
+
+    if args.probe:
+        probe = wrinkle_probe(settings.edge_length)
+        print(
+            f"{'bend':>6s} {'K [1/m]':>8s} "
+            + " ".join(f"{'P ' + k[8:]:>10s}" for k in probe[0] if k.startswith("d"))
+        )
+        for row in probe:
+            print(f"{row['bend']:6.1f} {row['curvature']:8.2f} " + " ".join(
+                f"{v:10.2f}" for k, v in row.items() if k.startswith("density")))  # fmt: skip
+        print(json.dumps(probe))
+        return {"probe": probe}
 
     rows = []
     for name in names:
