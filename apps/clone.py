@@ -4,8 +4,8 @@
 (configs/clone.yaml) recovers the material class of the cloth in a video with a trained
 classifier and "clones" it onto another piece of cloth: a square cloth draped over the arm
 scene's bending arm (:class:`simulator.cloth.scenes.ScenarioArmBend`; ``motion=wind`` shows the
-wind scene instead). The thesis clones onto a skirt; the drape shows the same thing, how
-the recovered material hangs and folds, with a scene this repository already simulates.
+wind scene instead), or, with ``target=skirt``, onto a skirt on the mannequin blown by a gusty
+wind, as the thesis does (:func:`simulator.garment.tryon.clone_skirt`).
 
 1. **Read.** The video is a video file (mp4, avi, ...; OpenCV) or a folder of image frames
    (``video_fps``, default 30), cut into clips exactly as :class:`~datasets.real_video.
@@ -67,7 +67,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from apps.recording import Recording
-from common.checks import check_device, check_float, check_int, check_threads
+from common.checks import check_choice, check_device, check_float, check_int, check_threads
 from common.commands import hydra_command
 from common.configs import config_errors
 from common.errors import InputError
@@ -373,6 +373,7 @@ def _checked(cfg: DictConfig) -> dict:
         threads = check_threads(cfg.threads, "threads")
     recording = Recording.from_config(cfg)
     sheet_frames = check_int(cfg.sheet_frames, "sheet_frames", 1)
+    target = check_choice(cfg.get("target", "cloth"), "target", CLONE_TARGETS)
     batch_size = check_int(cfg.batch_size, "batch_size", 1)
     device = check_device(cfg.device, "device")
     video_fps = None
@@ -405,8 +406,25 @@ def _checked(cfg: DictConfig) -> dict:
     return {
         "spec": spec, "trained": trained, "clips": clips, "module": module,
         "device": torch.device(device), "batch_size": batch_size, "threads": threads,
-        "sheet_frames": sheet_frames, "out_dir": Path(cfg.out_dir),
+        "sheet_frames": sheet_frames, "out_dir": Path(cfg.out_dir), "target": target,
     }  # fmt: skip
+
+
+CLONE_TARGETS = ("cloth", "skirt")
+"""What the classes are shown on: the motion scene's square cloth, or a skirt on the
+mannequin (*thesis* Fig. 7.9; :func:`simulator.garment.tryon.clone_skirt`)."""
+
+
+def _skirt_clone(spec: DatasetSpec, classes, material_set: MaterialSet, unit: WorkUnit, on_step):
+    """The classes on a skirt in wind: the mesh sequence and the rendered tiles."""
+    from simulator.garment.tryon import clone_skirt
+
+    fps = spec.preset.fps
+    return clone_skirt(
+        material_set.materials(list(classes)), level=spec.scenario.resolution_level,
+        seconds=(spec.frames_per_sim - 1) / fps, fps=fps, size=spec.camera.height,
+        seed=unit.sims[0].seed, on_frame=on_step,
+    )  # fmt: skip
 
 
 def _one_scene(spec: DatasetSpec) -> WorkUnit:
@@ -501,8 +519,12 @@ def run(cfg: DictConfig) -> CloneOutputs:
         bar.total = total
         bar.update(done - bar.n)
 
+    first, stop = spec.lead_in_frames, spec.frames_per_sim
     try:
-        seq = simulate_unit(spec, unit, None, on_step=on_step)
+        if checked["target"] == "skirt":
+            seq, skirt_frames = _skirt_clone(spec, classes, material_set, unit, on_step)
+        else:
+            seq = simulate_unit(spec, unit, None, on_step=on_step)
     finally:
         bar.close()
     seq.meta["classes"] = [material_set.summary(c) for c in classes]
@@ -510,9 +532,11 @@ def run(cfg: DictConfig) -> CloneOutputs:
     simulated = time.perf_counter()
 
     capsules = seq.capsules
-    first, stop = spec.lead_in_frames, spec.frames_per_sim
     rendered = []
     for b, sim in enumerate(unit.sims):
+        if checked["target"] == "skirt":
+            rendered.append(skirt_frames[b, first:stop])
+            continue
         frames, _ = render_frames(
             spec, seq, b, sim, first, stop, capsules=capsules,
             rng=np.random.default_rng([sim.seed, _RENDER_STREAM]),
@@ -538,6 +562,7 @@ def run(cfg: DictConfig) -> CloneOutputs:
     tiles = [source, *rendered]
     times = np.arange(shown) / fps
     report = _report(prediction, classes, clips, trained, spec, unit)
+    report["simulation"]["target"] = checked["target"]
 
     out_dir = checked["out_dir"]
     names = ("prediction.json", "clone.mp4", "contact_sheet.png", "sequence.npz")

@@ -1,0 +1,292 @@
+"""Garment energies on the solver core: seams, and cloth energies with per-instance rest shapes.
+
+* :class:`EnergySeam` sews: zero-rest-length springs between paired seam vertices,
+  ``E = 1/2 sum_i k_i |x_a - x_b|²`` with ``k_i = seam_stiffness * l_i`` (``l_i`` the length
+  of seam this pair stands for), so the closing force per unit seam length does not depend on
+  the mesh resolution. Quadratic, so its gradient and Hessian are exact and the Hessian
+  blocks ``k [[I, -I], [-I, I]]`` are positive semi-definite. A seam carrying a tension ``T``
+  [N/m] stays open by ``T / seam_stiffness`` [m] (:data:`SEAM_TOLERANCE` is the stated bound).
+* :class:`EnergyMembranePattern` and :class:`EnergyBendingPattern` are the core's
+  :class:`~simulator.energies.EnergyMembraneWang` and
+  :class:`~simulator.energies.EnergyBendingDihedral` with rest data per instance, shape
+  (B, F, ...) / (B, E), instead of the shared mesh's: a swarm of particles with different
+  sizing G (different flat panels on one topology) runs as one batch. With equal rest shapes
+  they equal the core terms (the tests' reference); the compiled kernels take only the core
+  types, so these stay on the torch path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from simulator.energies import EnergyBendingDihedral, EnergyMembraneWang
+from simulator.energies.base import ElementBlocks, Energy, psd_project_sym2
+from simulator.energies.bending import BEND_SCALE, _secant_integral
+from simulator.energies.membrane import _fibre_vectors, _green_strain, _phi, membrane_density
+from simulator.geometry import deformation_gradient, dihedral_angle, flat_indices, scatter_vertices
+
+__all__ = [
+    "SEAM_STIFFNESS",
+    "SEAM_TOLERANCE",
+    "EnergyBendingPattern",
+    "EnergyMembranePattern",
+    "EnergySeam",
+    "PatternRest",
+    "seam_pair_lengths",
+]
+
+SEAM_STIFFNESS = 5.0e4
+"""Seam stiffness per unit seam length [N/m²]."""
+SEAM_TOLERANCE = 2.0e-3
+"""Largest seam gap accepted after sewing [m] (a drape's tension of 10 N/m leaves 0.2 mm)."""
+
+
+def seam_pair_lengths(coords: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Seam length each vertex pair stands for [m], shape (n,): half its neighbouring edges.
+
+    Averaged over the two sides of the seam (``coords`` (V, 2) panel coordinates).
+    """
+    out = np.zeros(len(pairs))
+    for side in (0, 1):
+        pts = coords[pairs[:, side]]
+        edge = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        out[:-1] += 0.25 * edge
+        out[1:] += 0.25 * edge
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class EnergySeam(Energy):
+    """Zero-rest-length springs that sew paired vertices (see the module docstring)."""
+
+    pairs: torch.Tensor
+    """Vertex pairs, int64, shape (S, 2)."""
+    stiffness: torch.Tensor
+    """Spring constants [N/m], shape (S,) or (B, S)."""
+
+    def _diff(self, pos):
+        return pos[:, self.pairs[:, 1]] - pos[:, self.pairs[:, 0]]
+
+    def energy(self, model, pos):
+        """Seam energy [J], shape (B,)."""
+        d = self._diff(pos)
+        return 0.5 * (self.stiffness * (d * d).sum(-1)).sum(-1)
+
+    def gradient(self, model, pos):
+        """Exact dE/dx [N], shape (B, V, 3)."""
+        f = self.stiffness[..., None] * self._diff(pos)
+        return scatter_vertices(torch.stack([-f, f], dim=2), self.pairs, pos.shape[1])
+
+    def hessian_product(self, model, pos, dpos):
+        """Exact d²E/dx² · dpos (the energy is quadratic), shape (B, V, 3)."""
+        return self.gradient(model, dpos)
+
+    def hessian_blocks(self, model, pos):
+        """Exact blocks ``k [[I, -I], [-I, I]]`` per pair (PSD)."""
+        batch, verts = pos.shape[:2]
+        k = self.stiffness.expand(batch, -1)
+        eye = torch.eye(3, dtype=pos.dtype, device=pos.device)
+        h = k[..., None, None] * eye
+        blocks = torch.stack([torch.stack([h, -h], 2), torch.stack([-h, h], 2)], 2)
+        return ElementBlocks(
+            flat_indices(self.pairs, batch, verts), blocks.reshape(-1, 2, 2, 3, 3), self.pairs
+        )
+
+    def gaps(self, pos: torch.Tensor) -> torch.Tensor:
+        """Distance between the two vertices of every pair [m], shape (B, S)."""
+        return torch.linalg.vector_norm(self._diff(pos), dim=-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class PatternRest:
+    """Rest data of a batch of flat patterns sharing one topology."""
+
+    tri_rest_inv: torch.Tensor
+    """Inverse rest edge matrices [1/m], shape (B, F, 2, 2)."""
+    tri_rest_area: torch.Tensor
+    """Rest triangle areas [m²], shape (B, F)."""
+    edge_rest_length: torch.Tensor
+    """Rest lengths of the bending edges [m], shape (B, E)."""
+    edge_rest_area: torch.Tensor
+    """Sum of the two adjacent rest triangle areas [m²], shape (B, E)."""
+    vert_area: torch.Tensor
+    """Lumped rest area per vertex [m²], shape (B, V)."""
+
+    @staticmethod
+    def from_coords(coords: torch.Tensor, tri: torch.Tensor, edges: torch.Tensor) -> PatternRest:
+        """Rest data of panel coordinates (B, V, 2) [m] on triangles (F, 3) and hinges (E, 4).
+
+        The formulas are :meth:`simulator.mesh.TriMesh.from_arrays`'s; triangles must be
+        counter-clockwise (positive area) in every instance.
+        """
+        d1 = coords[:, tri[:, 1]] - coords[:, tri[:, 0]]
+        d2 = coords[:, tri[:, 2]] - coords[:, tri[:, 0]]
+        signed = 0.5 * (d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0])
+        if not bool((signed > 1e-12).all()):
+            raise ValueError("pattern: a triangle is degenerate or inverted in some instance")
+        rest = torch.stack([d1, d2], dim=-1)
+        area = signed.abs()
+        # The hinge's two triangles: found once from the shared topology.
+        t0, t1 = _hinge_triangles(tri, edges)
+        e = coords[:, edges[:, 3]] - coords[:, edges[:, 2]]
+        verts = coords.shape[1]
+        vert_area = coords.new_zeros(coords.shape[0], verts)
+        vert_area.index_add_(1, tri.reshape(-1), (area / 3.0).repeat_interleave(3, dim=1))
+        return PatternRest(
+            torch.linalg.inv(rest),
+            area,
+            torch.linalg.vector_norm(e, dim=-1),
+            area[:, t0] + area[:, t1],
+            vert_area,
+        )
+
+
+def _hinge_triangles(tri: torch.Tensor, edges: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The two triangles of each hinge ``[o0, o1, v1, v2]``: those holding (v1, v2, o0/o1)."""
+    tri_np = tri.cpu().numpy()
+    index = {}
+    for t, row in enumerate(tri_np.tolist()):
+        index[frozenset(row)] = t
+    e = edges.cpu().numpy()
+    t0 = [index[frozenset((a, c, d))] for a, _, c, d in e.tolist()]
+    t1 = [index[frozenset((b, c, d))] for _, b, c, d in e.tolist()]
+    return (
+        torch.as_tensor(t0, dtype=torch.int64, device=tri.device),
+        torch.as_tensor(t1, dtype=torch.int64, device=tri.device),
+    )
+
+
+def _shape_coeffs(rest_inv: torch.Tensor) -> torch.Tensor:
+    """c[..., i, a] = dF[:, a] / dx_i, rest_inv (B, F, 2, 2) -> (B, F, 3, 2)."""
+    return torch.cat([-rest_inv.sum(dim=-2, keepdim=True), rest_inv], dim=-2)
+
+
+@dataclasses.dataclass(frozen=True)
+class EnergyMembranePattern(EnergyMembraneWang):
+    """:class:`EnergyMembraneWang` with per-instance rest shapes (B, F, ...)."""
+
+    rest_inv: torch.Tensor
+    """Inverse rest edge matrices [1/m], shape (B, F, 2, 2)."""
+    rest_area: torch.Tensor
+    """Rest triangle areas [m²], shape (B, F)."""
+
+    @staticmethod
+    def from_rest(
+        stretching: torch.Tensor, rest: PatternRest, *, strain_dependent: bool = True,
+        anisotropic: bool = True,
+    ) -> EnergyMembranePattern:  # fmt: skip
+        """From stabilised stiffness rows (B, 6, 4) [N/m] and the patterns' rest data."""
+        core = EnergyMembraneWang.from_material(
+            stretching, strain_dependent=strain_dependent, anisotropic=anisotropic
+        )
+        return EnergyMembranePattern(core.row0, core.fibres, rest.tri_rest_inv, rest.tri_rest_area)
+
+    def _strain(self, model, pos):
+        fmat = deformation_gradient(pos, model.mesh.tri_indices, self.rest_inv)
+        return fmat, _green_strain(fmat)
+
+    def energy(self, model, pos):
+        """Sum over triangles of rest area times W [J], shape (B,)."""
+        _, g = self._strain(model, pos)
+        return (membrane_density(g, self.row0, self.fibres) * self.rest_area).sum(-1)
+
+    def _strain_jacobian(self, model, fmat):
+        c = _shape_coeffs(self.rest_inv)  # (B, F, 3, 2)
+        f0, f1 = fmat[..., 0], fmat[..., 1]
+        c0, c1 = c[..., 0, None], c[..., 1, None]
+        j0 = c0 * f0[:, :, None]
+        j1 = c1 * f1[:, :, None]
+        j2 = 0.5 * (c1 * f0[:, :, None] + c0 * f1[:, :, None])
+        return torch.stack([j0, j1, j2], dim=3)
+
+    def gradient(self, model, pos):
+        """Analytic dE/dx [N], shape (B, V, 3)."""
+        fmat, g = self._strain(model, pos)
+        s, _ = self._stress(g)
+        jac = self._strain_jacobian(model, fmat)
+        per_vert = torch.einsum("bfv,bfivx->bfix", s, jac) * self.rest_area[..., None, None]
+        return scatter_vertices(per_vert, model.mesh.tri_indices, pos.shape[1])
+
+    def hessian_blocks(self, model, pos):
+        """Exact material term plus PSD-clamped geometric stiffness (as the core term)."""
+        tri = model.mesh.tri_indices
+        fmat, g = self._strain(model, pos)
+        s, eps = self._stress(g)
+        k0, k1, k2, k3 = (self.row0[:, i, None] for i in range(4))
+        zero = torch.zeros_like(g[..., 0])
+        cmat = torch.stack(
+            [
+                torch.stack([k0 + zero, k1 + zero, zero], -1),
+                torch.stack([k1 + zero, k2 + zero, zero], -1),
+                torch.stack([zero, zero, k3 + zero], -1),
+            ],
+            dim=-2,
+        )
+        vectors = _fibre_vectors(g.dtype, g.device)
+        weights = self.fibres[:, None, :] * _phi(eps, 2)
+        cmat = cmat + torch.einsum("bfi,iv,iw->bfvw", weights, vectors, vectors)
+        jac = self._strain_jacobian(model, fmat)
+        area = self.rest_area[..., None, None]
+        cj = torch.einsum("zfvw,zfjwy->zfjvy", cmat * area, jac)
+        blocks = torch.einsum("zfivx,zfjvy->zfijxy", jac, cj)
+        smat = torch.stack(
+            [
+                torch.stack([s[..., 0], 0.5 * s[..., 2]], -1),
+                torch.stack([0.5 * s[..., 2], s[..., 1]], -1),
+            ],
+            dim=-2,
+        )
+        smat = psd_project_sym2(smat) * area
+        c = _shape_coeffs(self.rest_inv)
+        geo = torch.einsum("zfia,zfac,zfjc->zfij", c, smat, c)
+        blocks.diagonal(dim1=-2, dim2=-1).add_(geo[..., None])
+        batch = pos.shape[0]
+        return ElementBlocks(
+            flat_indices(tri, batch, pos.shape[1]), blocks.reshape(-1, 3, 3, 3, 3), tri
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class EnergyBendingPattern(EnergyBendingDihedral):
+    """:class:`EnergyBendingDihedral` with per-instance hinge rest lengths and areas (B, E)."""
+
+    rest_length: torch.Tensor
+    """Rest lengths of the hinges [m], shape (B, E)."""
+    rest_area: torch.Tensor
+    """Adjacent rest areas of the hinges [m²], shape (B, E)."""
+
+    @staticmethod
+    def from_rest(
+        mesh, bending: torch.Tensor, rest: PatternRest, *, curvature_dependent: bool = True,
+        anisotropic: bool = True,
+    ) -> EnergyBendingPattern:  # fmt: skip
+        """From material rows (B, 3, 5) [N·m]; hinge directions from the shared mesh."""
+        core = EnergyBendingDihedral.from_material(
+            mesh, bending, curvature_dependent=curvature_dependent, anisotropic=anisotropic
+        )
+        return EnergyBendingPattern(core.edge_stiffness, rest.edge_rest_length, rest.edge_rest_area)
+
+    def _terms(self, model, pos):
+        mesh = model.mesh
+        delta = dihedral_angle(pos, mesh.edge_indices) - mesh.edge_rest_angle
+        scale = self.rest_length / self.rest_area
+        kappa = delta.abs() * scale
+        psi, k_val, k_slope = _secant_integral(self.edge_stiffness, kappa)
+        return delta, scale, kappa, psi, k_val, k_slope
+
+    def energy(self, model, pos):
+        """Bending energy [J], shape (B,)."""
+        _, _, _, psi, _, _ = self._terms(model, pos)
+        return BEND_SCALE * (self.rest_area * psi).sum(-1)
+
+    def _derivatives(self, model, pos):
+        from simulator.geometry import dihedral_angle_gradient
+
+        delta, scale, kappa, _, k_val, k_slope = self._terms(model, pos)
+        area = self.rest_area
+        d_e = BEND_SCALE * area * scale * scale * k_val * delta
+        dd_e = BEND_SCALE * area * scale * scale * (k_val + k_slope * kappa)
+        return d_e, dd_e, dihedral_angle_gradient(pos, model.mesh.edge_indices)

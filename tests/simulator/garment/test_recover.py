@@ -1,0 +1,250 @@
+"""The recovery: swarm known-answer tests on tiny scenes, the command's files, bad input."""
+
+import json
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+import simulator.garment.recover as recover_entry
+from common.errors import InputError
+from simulator.garment.body import Mannequin
+from simulator.garment.curvature import regional_curvature
+from simulator.garment.drape import (
+    DrapeSettings,
+    GarmentBatch,
+    drape,
+    garment_material,
+    register_batch,
+)
+from simulator.garment.image import SilhouetteTarget, mesh_mask
+from simulator.garment.patterns import PatternTopology, build_pattern, default_params
+from simulator.garment.recovery import _hinges, _swarm, accuracy
+from simulator.garment.scenes import (
+    GARMENT_COLORS,
+    POSES,
+    SCENES,
+    drape_scene,
+    render_scene,
+    scene_camera,
+    scene_light,
+)
+
+CONFIGS = str(Path(__file__).resolve().parents[3] / "configs")
+TINY = [
+    "recovery.edge_length=0.1", "recovery.swarm_size=2", "recovery.rounds=1",
+    "recovery.sizing_iters=1", "recovery.material_iters=1", "recovery.joint_rounds=1",
+    "recovery.pose_iters=1", "recovery.body_swarm=4", "recovery.body_iters=3",
+    "recovery.drape_steps=6",
+    "recovery.first_drape_steps=12",
+]  # fmt: skip
+
+
+def _tiny_drapes(topology, body, coords, bend, stretch, angles, start, steps=60):
+    caps = body.capsules(angles)
+    settings = DrapeSettings(max_steps=steps, speed_tol=0.02)
+    batch = GarmentBatch.build(topology, coords, garment_material(bend, stretch), caps, settings,
+                               pos_hint=start)  # fmt: skip
+    return drape(batch, start, settings).pos.numpy()
+
+
+def _swarm_minimise(objective, lo, hi, incumbent, size, iters, seed=0):
+    swarm = _swarm(np.asarray(lo), np.asarray(hi), size, seed, incumbent, spread=0.3)
+    for _ in range(iters):
+        swarm.tell(objective(swarm.ask()))
+    return swarm.best_x, swarm.best_f
+
+
+def test_swarm_recovers_a_known_skirt_length_from_its_silhouette():
+    """Sizing swarm (Eq. 6.10 on batched drapes) on a tiny scene: r2 comes back."""
+    body = Mannequin.build()
+    topology = PatternTopology.build("skirt", 0.1)
+    camera = scene_camera(160)
+    angles = POSES["a"].angles[None]
+    truth = {**default_params("skirt"), "r2": 0.55}
+    pattern = build_pattern("skirt", truth, topology=topology)
+    x0 = register_batch(topology, pattern.coords[None], [truth], body, angles)
+    target_pos = _tiny_drapes(topology, body, pattern.coords[None], [10.0], [1.0], angles, x0)
+    px, _ = camera.project(target_pos[0])
+    target = SilhouetteTarget.from_mask(mesh_mask(px, topology.tri_indices, (160, 160)))
+
+    def objective(xs):
+        params = [{**truth, "r2": float(x[0])} for x in xs]
+        coords = np.stack([topology.coords(p) for p in params])
+        start = np.repeat(target_pos, len(xs), 0)  # warm start, as the recovery does
+        pos = _tiny_drapes(topology, body, coords, [10.0] * len(xs), [1.0] * len(xs),
+                           np.repeat(angles, len(xs), 0), start, steps=30)  # fmt: skip
+        return np.array([target.distance(mesh_mask(camera.project(p)[0], topology.tri_indices,
+                                                    (160, 160))) for p in pos])  # fmt: skip
+
+    best, _ = _swarm_minimise(objective, [0.3], [0.7], [0.4], size=6, iters=4)
+    assert abs(best[0] - 0.55) < 0.04, best
+
+
+def test_swarm_recovers_a_known_bending_stiffness_from_the_curvature():
+    """Material swarm (Eq. 6.5 with a known target K) on batched drapes: bend comes back."""
+    body = Mannequin.build()
+    topology = PatternTopology.build("skirt", 0.1)
+    angles = POSES["a"].angles[None]
+    params = default_params("skirt")
+    pattern = build_pattern("skirt", params, topology=topology)
+    x0 = register_batch(topology, pattern.coords[None], [params], body, angles)
+    tri = torch.as_tensor(topology.tri_indices)
+    edges = torch.as_tensor(_hinges(topology))
+    whole = np.zeros(topology.vert_count, dtype=np.int64)
+
+    def curvature(bends):
+        n = len(bends)
+        pos = _tiny_drapes(
+            topology,
+            body,
+            np.repeat(pattern.coords[None], n, 0),
+            bends,
+            [1.0] * n,
+            np.repeat(angles, n, 0),
+            np.repeat(x0, n, 0),
+            steps=80,
+        )
+        return regional_curvature(torch.as_tensor(pos), tri, edges, whole, 1)[:, 0].numpy()
+
+    target = curvature([40.0])[0]
+
+    def objective(xs):
+        return ((curvature(10 ** xs[:, 0]) - target) / target) ** 2
+
+    best, _ = _swarm_minimise(objective, [0.0], [2.0], [1.0], size=6, iters=4)
+    bend = 10 ** best[0]
+    assert accuracy({"bend": bend}, {"bend": 40.0}) > 0.7, bend
+
+
+def test_accuracy_is_the_thesis_measure():
+    assert accuracy({"a": 1.1, "b": 2.0}, {"a": 1.0, "b": 2.5}) == pytest.approx(1 - 0.15)
+
+
+def _tiny_image(tmp_path: Path, size: int = 128) -> tuple[Path, Path, Path]:
+    scene = next(s for s in SCENES if s.name == "skirt_low_midday")
+    body = Mannequin.build()
+    draped = drape_scene(scene, body, 0.1, DrapeSettings(max_steps=40, speed_tol=0.03))
+    caps = body.capsules(scene.pose_angles()[None])[0]
+    image, person, masks = render_scene(
+        scene_camera(size), scene_light("midday"), caps,
+        [(r.pos[0].numpy(), p.topology.tri_indices, GARMENT_COLORS[g])
+         for g, (p, r) in draped.items()],
+    )  # fmt: skip
+    paths = tmp_path / "in.png", tmp_path / "mask.png", tmp_path / "person.png"
+    cv2.imwrite(str(paths[0]), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(paths[1]), masks[0].astype(np.uint8) * 255)
+    cv2.imwrite(str(paths[2]), person.astype(np.uint8) * 255)
+    return paths
+
+
+def _compose(*overrides):
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        return compose(config_name="garment", overrides=list(overrides))
+
+
+@pytest.mark.render
+def test_the_command_writes_its_files(tmp_path):
+    image, mask, person = _tiny_image(tmp_path)
+    out = tmp_path / "out"
+    cfg = _compose(f"image={image}", "garment=skirt", f"mask={mask}", f"person_mask={person}",
+                   f"out_dir={out}", *TINY)  # fmt: skip
+    result = recover_entry.run(cfg)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted([*recover_entry.OUTPUTS, "garment.obj", "body.obj"])
+    svg = ET.parse(out / "pattern.svg").getroot()
+    assert len(svg.findall("{http://www.w3.org/2000/svg}polygon")) == 4
+    pattern = json.loads((out / "pattern.json").read_text())
+    assert pattern["garment"] == "skirt" and set(pattern["material"]) >= {"bend", "stretch"}
+    report = json.loads((out / "result.json").read_text())
+    assert {k: v["value"] for k, v in report["params"].items()} == result.pattern.params
+    assert [h["stage"] for h in report["history"]] == [
+        "material",
+        "sizing",
+        "pose",
+        "joint_material",
+    ]
+    for name in ("overlay.png", "side_by_side.png", "objective.png"):
+        picture = cv2.imread(str(out / name))
+        assert picture is not None and picture.size > 0, name
+    assert cv2.imread(str(out / "side_by_side.png")).shape[1] == 2 * 128 + 8
+    garment = (out / "garment.obj").read_text()
+    assert garment.count("\nv ") == result.pattern.topology.vert_count
+
+
+@pytest.mark.slow
+@pytest.mark.render
+def test_same_config_and_seed_write_the_same_bytes(tmp_path):
+    image, mask, person = _tiny_image(tmp_path)
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"out{k}"
+        cfg = _compose(f"image={image}", "garment=skirt", f"mask={mask}",
+                       f"person_mask={person}", f"out_dir={out}", *TINY)  # fmt: skip
+        recover_entry.run(cfg)
+        outs.append(out)
+    for name in recover_entry.OUTPUTS:
+        if name != "timings.json":
+            assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
+
+
+def _refuse(*args, **kwargs):
+    raise AssertionError("the recovery ran although a field was bad")
+
+
+@pytest.mark.parametrize(
+    ("make", "override", "message"),
+    [
+        ("text", "", "image: cannot read"),
+        ("empty", "", "image: cannot read"),
+        ("none", "", "image: no such file"),
+        ("image", "garment=dress", "garment must be one of skirt, pants, tshirt; got 'dress'"),
+        ("image", "recovery.swarm_size=1", "recovery.swarm_size must be an integer >= 2"),
+        ("image", "recovery.edge_length=0.5", "recovery.edge_length must lie in [0.02, 0.1] m"),
+        ("image", "+recovery.speed=3", "recovery: unknown ['speed']"),
+        ("image", "export=gif", "export must be one of obj, ply; got 'gif'"),
+        ("image", "camera.yfov_deg=500", "camera.yfov_deg must be a number in [1.0, 120.0]"),
+        ("bad_mask", "", "mask: "),
+        ("small_person", "", "image: the person found is 12 px tall; at least 100 px"),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(make, override, message, tmp_path, monkeypatch):
+    monkeypatch.setattr(recover_entry, "recover_garment", _refuse)
+    picture = np.full((160, 160, 3), 200, np.uint8)
+    path = tmp_path / "in.png"
+    extra = []
+    if make == "text":
+        path.write_text("not an image")
+    elif make == "empty":
+        path.write_bytes(b"")
+    elif make != "none":
+        cv2.imwrite(str(path), picture)
+    if make == "bad_mask":
+        cv2.imwrite(str(tmp_path / "m.png"), np.full((80, 90), 255, np.uint8))
+        extra.append(f"mask={tmp_path / 'm.png'}")
+    if make == "small_person":
+        person = np.zeros((160, 160), np.uint8)
+        person[50:62, 70:80] = 255
+        cv2.imwrite(str(tmp_path / "p.png"), person)
+        extra.append(f"person_mask={tmp_path / 'p.png'}")
+    out = tmp_path / "out"
+    overrides = [f"image={path}", "garment=skirt", f"out_dir={out}", *extra]
+    if override:
+        overrides.append(override)
+    cfg = _compose(*overrides)
+    with pytest.raises(InputError) as info:
+        recover_entry.run(cfg)
+    text = str(info.value)
+    assert message in text, text
+    assert "\n" not in text
+    assert not out.exists()
+
+
+def test_mask_size_error_names_both_sizes(tmp_path):
+    cv2.imwrite(str(tmp_path / "m.png"), np.full((80, 90), 255, np.uint8))
+    with pytest.raises(InputError, match=r"mask: .* is 90 x 80 px, the image is 160 x 160 px"):
+        recover_entry.read_mask(tmp_path / "m.png", "mask", (160, 160))
