@@ -5,7 +5,7 @@
 classifier and "clones" it onto another piece of cloth: a square cloth draped over the arm
 scene's bending arm (:class:`simulator.cloth.scenes.ScenarioArmBend`; ``motion=wind`` shows the
 wind scene instead), or, with ``target=skirt``, onto a skirt on the mannequin blown by a gusty
-wind, as the thesis does (:func:`simulator.garment.tryon.clone_skirt`).
+wind, as the thesis does (:func:`apps.garment.tryon.clone_skirt`).
 
 1. **Read.** The video is a video file (mp4, avi, ...; OpenCV) or a folder of image frames
    (``video_fps``, default 30), cut into clips exactly as :class:`~datasets.real_video.
@@ -412,12 +412,12 @@ def _checked(cfg: DictConfig) -> dict:
 
 CLONE_TARGETS = ("cloth", "skirt")
 """What the classes are shown on: the motion scene's square cloth, or a skirt on the
-mannequin (*thesis* Fig. 7.9; :func:`simulator.garment.tryon.clone_skirt`)."""
+mannequin (*thesis* Fig. 7.9; :func:`apps.garment.tryon.clone_skirt`)."""
 
 
 def _skirt_clone(spec: DatasetSpec, classes, material_set: MaterialSet, unit: WorkUnit, on_step):
     """The classes on a skirt in wind: the mesh sequence and the rendered tiles."""
-    from simulator.garment.tryon import clone_skirt
+    from apps.garment.tryon import clone_skirt
 
     fps = spec.preset.fps
     return clone_skirt(

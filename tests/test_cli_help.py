@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 HYDRA = {
     "simulator.cloth.simulate", "datasets.generate", "apps.demo", "apps.clone",
     "benchmarks.thesis.tissue_jobs", "sim2real.diagnose", "models.evaluate", "sim2real.shrink",
-    "sim2real.candidates",
+    "sim2real.candidates", "apps.garment.recover", "apps.garment.tryon",
 }  # fmt: skip
 
 COMMANDS = [
@@ -30,7 +30,8 @@ COMMANDS = [
     "sim2real.study.validate",
     "benchmarks.thesis.pso_benchmark", "simulator.export",
     "benchmarks.thesis.paper_table1", "benchmarks.thesis.fig73", "benchmarks.thesis.table71",
-    "benchmarks.thesis.tissue_tables", "benchmarks.thesis.table41",
+    "benchmarks.thesis.tissue_tables", "benchmarks.thesis.garment_tables",
+    "benchmarks.thesis.table41",
 ]  # fmt: skip
 
 

@@ -1,11 +1,11 @@
 """*thesis* Tables 6.1-6.3: garment recovery on the synthetic scenes of Fig. 6.11.
 
-Every scene of :data:`simulator.garment.scenes.SCENES` (poses a, b, c with a t-shirt over pants;
+Every scene of :data:`apps.garment.scenes.SCENES` (poses a, b, c with a t-shirt over pants;
 a skirt of low and of high bending stiffness; each under the ``midday`` and ``sunset`` light)
 is draped and rendered with known sizing G, material C and pose θ; the recovery then sees the
 image, the person's silhouette and each garment's mask (the *thesis*'s user-assisted parsing)
 and recovers G and C of every garment and the body's pose
-(:func:`simulator.garment.recovery.recover_garment`; the body is fitted once per scene).
+(:func:`apps.garment.recovery.recover_garment`; the body is fitted once per scene).
 
 Reported, beside the *thesis*'s numbers:
 
@@ -39,16 +39,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simulator.garment.body import JOINTS, Mannequin, Pose, joint_angle_errors
-from simulator.garment.curvature import regional_curvature
-from simulator.garment.recovery import (
+from apps.garment.recovery import (
     RecoverySettings,
     accuracy,
     fit_body,
     recover_garment,
     skin_mask,
 )
-from simulator.garment.scenes import (
+from apps.garment.scenes import (
     GARMENT_COLORS,
     REGIONS,
     SCENES,
@@ -59,6 +57,8 @@ from simulator.garment.scenes import (
     scene_light,
     vertex_regions,
 )
+from simulator.garment.body import JOINTS, Mannequin, Pose, joint_angle_errors
+from simulator.garment.curvature import regional_curvature
 from simulator.threads import use_process_threads
 
 THESIS = {
@@ -129,7 +129,7 @@ def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dic
         pattern, drape_res = draped[g]
         regions = primitive_regions(body, g)
         tri = torch.as_tensor(pattern.topology.tri_indices)
-        from simulator.garment.recovery import _hinges
+        from apps.garment.recovery import _hinges
 
         edges = torch.as_tensor(_hinges(pattern.topology))
         vr = vertex_regions(drape_res.pos[0].numpy(), caps, regions)
@@ -173,6 +173,9 @@ def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> li
 
     In pose a, under each lighting: what the material step has to work with.
     """
+    from apps.garment.image import region_map, wrinkle_density
+    from apps.garment.recovery import _hinges
+    from apps.garment.scenes import LIGHTINGS, POSES, pixel_size
     from simulator.garment.drape import (
         DrapeSettings,
         GarmentBatch,
@@ -180,10 +183,7 @@ def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> li
         garment_material,
         register_batch,
     )
-    from simulator.garment.image import region_map, wrinkle_density
     from simulator.garment.patterns import PatternTopology, build_pattern
-    from simulator.garment.recovery import _hinges
-    from simulator.garment.scenes import LIGHTINGS, POSES, pixel_size
 
     body = Mannequin.build()
     topo = PatternTopology.build("skirt", edge_length)

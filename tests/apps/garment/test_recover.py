@@ -10,7 +10,18 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-import simulator.garment.recover as recover_entry
+import apps.garment.recover as recover_entry
+from apps.garment.image import SilhouetteTarget, mesh_mask
+from apps.garment.recovery import _hinges, _swarm, accuracy
+from apps.garment.scenes import (
+    GARMENT_COLORS,
+    POSES,
+    SCENES,
+    drape_scene,
+    render_scene,
+    scene_camera,
+    scene_light,
+)
 from common.errors import InputError
 from simulator.garment.body import Mannequin
 from simulator.garment.curvature import regional_curvature
@@ -21,18 +32,7 @@ from simulator.garment.drape import (
     garment_material,
     register_batch,
 )
-from simulator.garment.image import SilhouetteTarget, mesh_mask
 from simulator.garment.patterns import PatternTopology, build_pattern, default_params
-from simulator.garment.recovery import _hinges, _swarm, accuracy
-from simulator.garment.scenes import (
-    GARMENT_COLORS,
-    POSES,
-    SCENES,
-    drape_scene,
-    render_scene,
-    scene_camera,
-    scene_light,
-)
 
 CONFIGS = str(Path(__file__).resolve().parents[3] / "configs")
 TINY = [

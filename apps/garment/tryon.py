@@ -8,7 +8,7 @@ simulated dynamically (backward Euler, friction, aerodynamic drag) in a gusty wi
 in over ``ramp`` seconds; the frames are recorded as a :class:`simulator.sequence.MeshSequence`
 and rendered.
 
-``python -m simulator.garment.tryon pattern=<run>/pattern.json body.height=1.6 pose=c``
+``python -m apps.garment.tryon pattern=<run>/pattern.json body.height=1.6 pose=c``
 (``configs/garment_tryon.yaml``) writes ``tryon.png`` (the dressed body, front and three
 quarter), ``wind.mp4``, ``sequence.npz``, ``garment.obj`` and ``body.obj``.
 """
@@ -29,12 +29,8 @@ from common.errors import InputError
 from simulator.cloth.material import ClothMaterial
 from simulator.cloth.wind import WindField
 from simulator.forces import AerodynamicDrag
-from simulator.integrators import IntegratorBackwardEuler
-from simulator.model import SimState
-from simulator.sequence import MeshSequence
-
-from .body import BodyShape, Mannequin, Pose
-from .drape import (
+from simulator.garment.body import BodyShape, Mannequin, Pose
+from simulator.garment.drape import (
     DrapeSettings,
     GarmentBatch,
     check_material,
@@ -42,7 +38,16 @@ from .drape import (
     garment_material,
     register_batch,
 )
-from .patterns import GarmentType, Pattern, PatternTopology, build_pattern, param_specs
+from simulator.garment.patterns import (
+    GarmentType,
+    Pattern,
+    PatternTopology,
+    build_pattern,
+    param_specs,
+)
+from simulator.integrators import IntegratorBackwardEuler
+from simulator.model import SimState
+from simulator.sequence import MeshSequence
 
 __all__ = [
     "CLONE_LEVELS", "GIRTH_PARAMS", "TryOn", "animate", "clone_skirt", "load_pattern_json",
@@ -75,7 +80,7 @@ def load_pattern_json(path: str | Path, field: str = "pattern") -> tuple[str, di
     raw = data["params"]
     params = {k: (v["value"] if isinstance(v, Mapping) else v) for k, v in raw.items()}
     material = {k: v for k, v in (data.get("material") or {}).items() if k in ("bend", "stretch")}
-    from .patterns import check_params
+    from simulator.garment.patterns import check_params
 
     return (
         garment,
@@ -436,7 +441,7 @@ def _write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
 
 
 main = hydra_command(run, config_name="garment_tryon", config_path="../../configs")
-"""The command line: ``python -m simulator.garment.tryon pattern=... pose=c``."""
+"""The command line: ``python -m apps.garment.tryon pattern=... pose=c``."""
 
 
 if __name__ == "__main__":

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-import simulator.garment.tryon as tryon
+import apps.garment.tryon as tryon
+from apps.garment.scenes import POSES
 from common.errors import InputError
 from simulator.garment.body import BodyShape, Mannequin, capsule_distance
 from simulator.garment.patterns import build_pattern, default_params
-from simulator.garment.scenes import POSES
 from simulator.sequence import MeshSequence
 
 CONFIGS = str(Path(__file__).resolve().parents[3] / "configs")

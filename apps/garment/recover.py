@@ -1,7 +1,7 @@
 """Hydra entry point: recover a garment's pattern, material and the body's pose from one image.
 
-``python -m simulator.garment.recover image=photo.png garment=skirt`` (``configs/garment.yaml``)
-runs :func:`simulator.garment.recovery.recover_garment` and writes into the run folder
+``python -m apps.garment.recover image=photo.png garment=skirt`` (``configs/garment.yaml``)
+runs :func:`apps.garment.recovery.recover_garment` and writes into the run folder
 (``logs/garment/runs/<time>/``), all at the end (staged in a hidden folder and moved into
 place, so a failure or Ctrl-C leaves none of them):
 
@@ -37,9 +37,9 @@ from common.checks import check_choice, check_float, check_int, check_threads
 from common.commands import hydra_command
 from common.configs import config_errors
 from common.errors import InputError
+from simulator.garment.patterns import GARMENT_TYPES, GarmentType, param_specs
 from simulator.threads import use_process_threads
 
-from .patterns import GARMENT_TYPES, GarmentType, param_specs
 from .recovery import RecoveryResult, RecoverySettings, recover_garment
 
 log = logging.getLogger(__name__)
@@ -302,7 +302,7 @@ def write_outputs(
 
 
 main = hydra_command(run, config_name="garment", config_path="../../configs")
-"""The command line: ``python -m simulator.garment.recover image=... garment=skirt``."""
+"""The command line: ``python -m apps.garment.recover image=... garment=skirt``."""
 
 
 if __name__ == "__main__":

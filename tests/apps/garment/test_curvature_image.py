@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from simulator.garment.body import Mannequin, Pose
-from simulator.garment.curvature import edge_curvature, regional_curvature, vertex_mean_curvature
-from simulator.garment.image import (
+from apps.garment.image import (
     SilhouetteTarget,
     capsule_mask,
     mesh_mask,
     region_map,
     wrinkle_density,
 )
-from simulator.garment.recovery import BodyFit, estimate_light
-from simulator.garment.scenes import scene_camera, scene_light
+from apps.garment.recovery import BodyFit, estimate_light
+from apps.garment.scenes import scene_camera, scene_light
+from simulator.garment.body import Mannequin, Pose
+from simulator.garment.curvature import edge_curvature, regional_curvature, vertex_mean_curvature
 from simulator.mesh import TriMesh
 
 
@@ -100,7 +100,7 @@ def test_wrinkle_density_counts_folds_and_ignores_light_scale():
 
 @pytest.mark.render
 def test_light_estimate_finds_the_key_direction():
-    from simulator.garment.scenes import render_scene
+    from apps.garment.scenes import render_scene
 
     body = Mannequin.build()
     pose = Pose.from_dict({"shoulder_r": [0, -65, 0], "shoulder_l": [0, 65, 0]})

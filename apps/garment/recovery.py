@@ -40,10 +40,9 @@ import torch
 
 from common.errors import InputError
 from simulator.calibrate.pso import ParticleSwarm
-
-from .body import JOINTS, BodyShape, Mannequin, Pose, joint_angle_errors
-from .curvature import regional_curvature
-from .drape import (
+from simulator.garment.body import JOINTS, BodyShape, Mannequin, Pose, joint_angle_errors
+from simulator.garment.curvature import regional_curvature
+from simulator.garment.drape import (
     MATERIAL_SPECS,
     DrapeSettings,
     GarmentBatch,
@@ -51,16 +50,7 @@ from .drape import (
     garment_material,
     register_batch,
 )
-from .image import (
-    SilhouetteTarget,
-    capsule_mask,
-    mesh_mask,
-    parse_garment,
-    parse_person,
-    region_map,
-    wrinkle_density,
-)
-from .patterns import (
+from simulator.garment.patterns import (
     GarmentType,
     Pattern,
     PatternTopology,
@@ -69,6 +59,16 @@ from .patterns import (
     from_search,
     search_box,
     to_search,
+)
+
+from .image import (
+    SilhouetteTarget,
+    capsule_mask,
+    mesh_mask,
+    parse_garment,
+    parse_person,
+    region_map,
+    wrinkle_density,
 )
 from .scenes import REGIONS, pixel_size, primitive_regions, vertex_regions
 
@@ -882,7 +882,7 @@ def _repose(pos: np.ndarray, body: Mannequin, angles: np.ndarray, targets: np.nd
     Relative bone transforms ``M_j(target) M_j(angles)^-1`` with weights from the draped
     shape, then the push-out of :func:`.skinning.remove_interpenetrations` (few rounds).
     """
-    from .skinning import _push_out, linear_blend, skinning_weights
+    from simulator.garment.skinning import _push_out, linear_blend, skinning_weights
 
     bones_now = body.bone_transforms(angles[None])[0]
     # Weights are computed in the rest pose: undo the current pose first.
@@ -896,7 +896,7 @@ def _repose(pos: np.ndarray, body: Mannequin, angles: np.ndarray, targets: np.nd
 
 def _weights_posed(pos: np.ndarray, body: Mannequin, angles: np.ndarray) -> np.ndarray:
     """Skinning weights of a posed garment: nearest posed bones (as in the rest pose)."""
-    from .body import capsule_distance
+    from simulator.garment.body import capsule_distance
 
     caps = body.capsules(angles[None])[0]
     dist, _ = capsule_distance(pos, caps)

@@ -19,8 +19,8 @@ import dataclasses
 
 import numpy as np
 
-from .body import Mannequin, Pose
-from .patterns import GarmentType
+from simulator.garment.body import Mannequin, Pose
+from simulator.garment.patterns import GarmentType
 
 __all__ = [
     "GARMENT_COLORS",
@@ -71,7 +71,7 @@ def primitive_regions(body: Mannequin, garment: str) -> np.ndarray:
 
 def vertex_regions(pos: np.ndarray, capsules: np.ndarray, regions: np.ndarray) -> np.ndarray:
     """Region of each vertex: the nearest body primitive's that has one, int (V,)."""
-    from .body import capsule_distance
+    from simulator.garment.body import capsule_distance
 
     dist, _ = capsule_distance(np.asarray(pos, np.float64), capsules)
     dist = np.where(regions[None] >= 0, dist, np.inf)
@@ -286,8 +286,14 @@ def drape_scene(
     scene: SceneSpec, body: Mannequin, edge_length: float, settings=None
 ) -> dict[str, tuple]:
     """Drape a scene's garments, inner first; ``{garment: (pattern, DrapeResult)}``."""
-    from .drape import DrapeSettings, GarmentBatch, drape, garment_material, register_batch
-    from .patterns import PatternTopology, build_pattern
+    from simulator.garment.drape import (
+        DrapeSettings,
+        GarmentBatch,
+        drape,
+        garment_material,
+        register_batch,
+    )
+    from simulator.garment.patterns import PatternTopology, build_pattern
 
     settings = settings or DrapeSettings(max_steps=200)
     angles = scene.pose_angles()[None]
