@@ -41,6 +41,7 @@ from .diagnosis import (
     shapley_values,
     stage_of_residual,
 )
+from .diagnosis.joint import Assignment, Factor, closure_values, fit_jointly
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
 from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
@@ -98,6 +99,14 @@ class Budget:
     refine: str = "all"
     """Densify the strength grid around the best strength of the top candidates: ``none``,
     ``visual`` (re-rendered candidates only: no simulation) or ``all``."""
+    joint_top: int = 4
+    """Candidates (best first, closing more than S' does, one per setting) calibrated
+    together as the factors of one simulator S* (:mod:`sim2real.diagnosis.joint`); 0 = none.
+    Costs about ``joint_rounds x (strengths + 1)`` sets a factor, then 2^k for attribution."""
+    joint_rounds: int = 2
+    """Rounds of the joint coordinate ascent (it stops early when a round moves nothing)."""
+    joint_strengths: int = 4
+    """Strengths each factor tries in the joint fit (spread over those it was scored at)."""
 
     def __post_init__(self):
         if self.refine not in ("none", "visual", "all"):
@@ -112,6 +121,9 @@ class Budget:
             for count in self.class_grid:
                 check_int("budget.class_grid", count)
         check_int("budget.shapley_top", self.shapley_top, low=0)
+        check_int("budget.joint_top", self.joint_top, low=0)
+        check_int("budget.joint_rounds", self.joint_rounds)
+        check_int("budget.joint_strengths", self.joint_strengths)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
 
@@ -461,6 +473,13 @@ def run_diagnosis(
             name, stage, values, [sets[label] for label in labels], nominal, real_features,
             gaps, rungs, before),
     )  # fmt: skip
+    tick = time.perf_counter()
+    joint = _joint_fit(
+        plan, results, null, spec, budget, build=build, sets=sets, nominal=nominal,
+        value_of=lambda built: closure_values(built, nominal, real_features, gaps, rungs, before,
+                                              n_boot=budget.n_boot, seed=seed),
+    )  # fmt: skip
+    timing["joint"] = time.perf_counter() - tick
     swaps, built, built_cached = _stage_swaps(
         spec, library, plan, sets, nominal, real, real_features, gaps, context, net,
         budget=budget, n_jobs=n_jobs, progress=progress, timing=timing, seed=seed,
@@ -501,6 +520,7 @@ def run_diagnosis(
         "residual": residual,
         "shapley": shapley,
         "stacked": stacked,
+        "joint": None if joint is None else joint.to_json(),
         "counterfactuals": swaps,
         "residual_stage": stage_of_residual(
             location, ranking["stage_scores"], {n: g.corrected_auc for n, g in gaps.items()}
@@ -733,6 +753,53 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
         "closure": {"+".join(sorted(k)): v for k, v in closure.items() if len(k) > 1},
         "kernel_closure": kernel,
     }
+
+
+def _joint_factors(plan: list[tuple], results: list, null, budget: Budget) -> list[Factor]:
+    """The factors of the joint fit: the best candidates that close more than S' does.
+
+    At most ``budget.joint_top``, best first, and one per setting (two candidates that set
+    one field cannot both hold). Each starts at its own best strength and tries up to
+    ``budget.joint_strengths`` of those it was scored at, that one included.
+    """
+    order = sorted(range(len(plan)), key=lambda i: results[i].best_score, reverse=True)
+    factors, settings = [], set()
+    for i in order:
+        (candidate, values), result = plan[i], results[i]
+        if len(factors) == budget.joint_top or result.best_score <= max(null.best_score, 0.0):
+            break
+        if (candidate.registry, candidate.field) in settings:
+            continue
+        settings.add((candidate.registry, candidate.field))
+        picked = {values[j] for j in _spread(len(values), budget.joint_strengths)}
+        picked.add(result.best_strength)
+        options = tuple(v for v in values if v in picked)
+        factors.append(Factor(candidate.name, candidate.stage, options, result.best_strength))
+    return factors
+
+
+def _joint_fit(plan, results, null, spec, budget: Budget, *, build, sets, nominal, value_of):
+    """The joint calibration and attribution (``None`` with fewer than two factors)."""
+    factors = _joint_factors(plan, results, null, budget)
+    if len(factors) < 2:
+        return None
+    by_name = {candidate.name: candidate for candidate, _ in plan}
+
+    def label(chosen: Assignment) -> str:
+        return "joint:" + "+".join(_label(by_name[n], v) for n, v in chosen)
+
+    def evaluate(batch: list[Assignment]) -> list:
+        jobs = []
+        for chosen in batch:
+            joint_spec = spec
+            for n, v in chosen:
+                joint_spec = by_name[n].apply(joint_spec, v)
+            if chosen:
+                jobs.append(SetJob(label(chosen), joint_spec))
+        build(jobs)
+        return value_of([sets[label(c)] if c else nominal for c in batch])
+
+    return fit_jointly(factors, evaluate, rounds=budget.joint_rounds)
 
 
 def _label(candidate: Candidate, value) -> str:

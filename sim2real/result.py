@@ -18,6 +18,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
+from .diagnosis.joint import JointFit
+
 __all__ = ["Diagnosis", "DiagnosisInputs", "Location", "Ranking"]
 
 
@@ -222,6 +224,9 @@ class Diagnosis:
     """Seconds per step."""
     shrink: dict | None = None
     """Section 3, added by ``sim2real.shrink``."""
+    joint: JointFit | None = None
+    """Every factor calibrated together and attributed (:mod:`sim2real.diagnosis.joint`);
+    ``None`` when fewer than two candidates close part of the gap (or in older reports)."""
     extra: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
@@ -234,6 +239,8 @@ class Diagnosis:
         known, extra = _split(cls, data, "report")
         for name, kind in _TYPED.items():
             known[name] = kind.from_json(known[name])
+        if known.get("joint") is not None:
+            known["joint"] = JointFit.from_json(known["joint"])
         return cls(**known, extra=extra)
 
     def to_json(self) -> dict:
@@ -241,9 +248,9 @@ class Diagnosis:
         out = {**self.extra}
         for name in _fields(type(self)):
             value = getattr(self, name)
-            if name == "shrink" and value is None:
+            if name in ("shrink", "joint") and value is None:
                 continue
-            out[name] = value.to_json() if name in _TYPED else value
+            out[name] = value.to_json() if name in _TYPED or name == "joint" else value
         return out
 
     @property

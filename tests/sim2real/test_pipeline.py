@@ -205,6 +205,12 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert set(shapley["kernel_closure"]) == set(shapley["coalitions"])
     assert result.ranking.kernel_closure == noise["kernel_closure"] >= 0.5
     assert not result.ranking.look_alike
+    joint = result.joint  # every candidate that closes some of the gap, calibrated together
+    if joint is not None:
+        assert joint.strengths.get("visual.sensor_noise") in noise["strengths"]
+        assert sum(joint.shapley.values()) == pytest.approx(joint.closure, abs=1e-9)
+        assert joint.closure >= noise["best_score"] - 0.05
+        assert "Every factor calibrated together" in (out / "report.md").read_text()
     residual = result.residual  # the gap tests between R and the top's best set
     assert residual["candidate"] == "visual.sensor_noise"
     assert residual["strength"] in noise["strengths"]
@@ -239,7 +245,8 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
 
     # one more candidate: only its sets are built, everything else comes from the cache (the
     # camera swap already built the camera effects at the budget's strengths)
-    again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"])
+    again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"],
+                      budget=dataclasses.replace(BUDGET, joint_top=0))  # no new combinations
     library = candidate_library(_spec())
     grid = set(library["visual.compression"].strengths(BUDGET.strengths))
     new_sets = len(set(again.candidates["visual.compression"]["strengths"]) - grid)

@@ -1,0 +1,347 @@
+"""Every factor calibrated together, then each factor's share of the gap.
+
+Footage that differs from the simulation in several ways at once is not explained by any one
+candidate: each closes a little of the gap and none is named. Here the candidates that close
+some of it become *factors* of one calibrated simulator S*: coordinate ascent over their
+strengths, each refitted with all the others in place (:func:`calibrate`), maximises the
+share of the gap S* closes. At S* every factor is attributed its part: the gap that returns
+when it alone is reset to nominal (:attr:`JointFit.reset`) and its exact Shapley value over
+the factors that matter (:attr:`JointFit.shapley`), with group-bootstrap intervals. The
+Shapley values sum to S*'s closure, so "the gap is 40 % scene, 30 % physics, ... and X % is
+unexplained" reads straight off :meth:`JointFit.stage_shares`.
+
+The measure is the diagnosis's closure (:func:`sim2real.diagnosis.candidate_result`): on a
+rung the classifier tells apart perfectly it is the classifier divergence, which keeps
+falling as effects are added where the AUC stays at 1. Nothing here builds sets: the caller
+passes ``evaluate``, which builds and scores a batch of assignments.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Callable, Iterable, Sequence
+
+import numpy as np
+
+from ..ladder import LadderFeatures
+from ..stats import CI_LEVEL, Gap, bootstrap_draws, classifier_divergence, weighted_auc
+from .coalitions import shapley_values
+from .scoring import ReferenceScores, _auc_floor, candidate_result
+
+__all__ = [
+    "JOINT_TOLERANCE", "MATTERS", "Assignment", "Factor", "JointFit", "Value", "assignment",
+    "attribute", "calibrate", "closure_values", "fit_jointly",
+]  # fmt: skip
+
+
+JOINT_TOLERANCE = 0.01
+"""A move of the coordinate ascent must raise the closure by more than this share of the gap."""
+
+MATTERS = 0.05
+"""A factor matters when resetting it alone to nominal gives back at least this share of the
+gap; only factors that matter get Shapley values and stay in S*."""
+
+Assignment = tuple[tuple[str, object], ...]
+"""The applied factors and their strengths, sorted by name (absent factors are nominal)."""
+
+
+def assignment(strengths: dict[str, object]) -> Assignment:
+    """The canonical form of ``{factor: strength}`` (``None`` strengths are left out)."""
+    return tuple(sorted((k, v) for k, v in strengths.items() if v is not None))
+
+
+@dataclasses.dataclass(frozen=True)
+class Value:
+    """The closure of one assignment's set: the point value and its bootstrap replicates."""
+
+    closure: float
+    """Share of the gap closed (1 = S* indistinguishable from R, 0 = no better than S)."""
+    replicates: np.ndarray
+    """The closure under each group-bootstrap draw, shape (B,); the same draws for every
+    assignment, so differences and Shapley values get intervals too."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Factor:
+    """One candidate as a factor of the joint fit."""
+
+    name: str
+    stage: str
+    options: tuple
+    """Strengths the ascent tries (a switch: ``(True,)``); nominal is always tried too."""
+    start: object | None = None
+    """Where the ascent starts: the single-candidate fit, or ``None`` (nominal)."""
+
+    def __post_init__(self):
+        if not self.options:
+            raise ValueError(f"factor {self.name}: needs at least one strength to try")
+
+
+Evaluate = Callable[[Sequence[Assignment]], list[Value]]
+"""Builds (or finds cached) and scores a batch of assignments, in order."""
+
+
+def closure_values(
+    sets: Sequence[LadderFeatures],
+    sim: LadderFeatures,
+    real: LadderFeatures,
+    gaps: dict[str, Gap],
+    rungs: list[str],
+    before: ReferenceScores,
+    *,
+    n_boot: int,
+    seed: int,
+) -> list[Value]:
+    """The closure of each set (as :func:`candidate_result` scores it) with its replicates.
+
+    A replicate redraws S's simulations and R's videos by group (the same draws for every
+    set: S_e holds S's simulations) and re-scores both S's and the set's out-of-fold
+    classifier measure on every scored rung, the divergence on a saturated rung and the AUC
+    above its floor elsewhere (classifiers held fixed). S itself closes exactly 0, in every
+    replicate.
+    """
+    for features in sets:
+        if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
+            raise ValueError("closure_values: every set must hold S's simulations, in S's order")
+    rng = np.random.default_rng([seed, 64])
+    scored = candidate_result("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets], sim,
+                              real, gaps, rungs, before)  # fmt: skip
+    codes_x = np.unique(sim.groups, return_inverse=True)[1].reshape(-1)
+    codes_y = np.unique(real.groups, return_inverse=True)[1].reshape(-1)
+    draws_x = bootstrap_draws(int(codes_x.max()) + 1, n_boot, rng)
+    draws_y = bootstrap_draws(int(codes_y.max()) + 1, n_boot, rng)
+    weights = np.concatenate([draws_x[codes_x], draws_y[codes_y]]).astype(np.float64)
+    labels = np.r_[np.zeros(len(codes_x)), np.ones(len(codes_y))]
+    rung_weights = before.weights(gaps, rungs)
+    replicates = np.zeros((len(sets), n_boot))
+
+    def measured(measure, scores: np.ndarray) -> np.ndarray:  # mean over the CV repeats
+        return np.mean([measure(row, labels, weights) for row in scores], axis=0)
+
+    for r, rung in enumerate(rungs):
+        saturated = before.saturated(rung)
+        measure = classifier_divergence if saturated else weighted_auc
+        floor = 0.0 if saturated else _auc_floor(gaps[rung])
+        oof = scored.scores_oof[rung]
+        reference = measured(measure, oof[0])
+        span = np.maximum(reference - floor, 1e-3)
+        for i in range(len(sets)):
+            closed = np.clip((reference - measured(measure, oof[i + 1])) / span, -1.0, 1.0)
+            replicates[i] += rung_weights[r] * np.nan_to_num(closed, nan=0.0)
+    return [Value(float(scored.score[i + 1]), replicates[i]) for i in range(len(sets))]
+
+
+def _nominal(count: int) -> Value:
+    return Value(0.0, np.zeros(count))
+
+
+def calibrate(
+    factors: Sequence[Factor],
+    evaluate: Evaluate,
+    *,
+    rounds: int = 2,
+    tolerance: float = JOINT_TOLERANCE,
+) -> tuple[Assignment, Value, list[dict]]:
+    """Coordinate ascent over the factors' strengths, each refitted with the others in place.
+
+    Starts from every factor at its ``start``; a round visits the factors in order and, for
+    each, scores nominal and every option with the others held (one batch, so the caller can
+    build it in parallel), moving when the best beats the current closure by ``tolerance``.
+    Stops after a round without a move or after ``rounds``.
+
+    Returns:
+        The calibrated assignment, its value, and the path (one entry per factor visit: the
+        factor, the strengths tried, their closures and the one kept).
+    """
+    names = [f.name for f in factors]
+    if len(set(names)) != len(names):
+        raise ValueError(f"factors must have distinct names, got {names}")
+    current = {f.name: f.start for f in factors}
+    value = evaluate([assignment(current)])[0]
+    path = []
+    for round_ in range(rounds):
+        moved = False
+        for factor in factors:
+            tried = [None, *factor.options]
+            batch = [assignment({**current, factor.name: s}) for s in tried]
+            values = evaluate(batch)
+            closures = [v.closure for v in values]
+            best = int(np.nanargmax(np.nan_to_num(closures, nan=-np.inf)))
+            if (tried[best] != current[factor.name]
+                    and closures[best] > value.closure + tolerance):  # fmt: skip
+                current[factor.name] = tried[best]
+                value = values[best]
+                moved = True
+            path.append({
+                "round": round_ + 1, "factor": factor.name, "tried": list(tried),
+                "closure": closures, "kept": current[factor.name],
+            })  # fmt: skip
+        if not moved:
+            break
+    return assignment(current), value, path
+
+
+def _interval(replicates: np.ndarray) -> tuple[float, float]:
+    finite = replicates[np.isfinite(replicates)]
+    if finite.size == 0:
+        return (math.nan, math.nan)
+    lo, hi = np.quantile(finite, [(1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2])
+    return (float(lo), float(hi))
+
+
+@dataclasses.dataclass(frozen=True)
+class JointFit:
+    """The calibrated simulator S* and each factor's part of the gap it closes."""
+
+    factors: dict[str, str]
+    """Every factor fitted (name -> stage), in the order the ascent visited them."""
+    strengths: dict[str, object]
+    """The calibrated strengths of the factors that matter (the others are nominal)."""
+    closure: float
+    """Share of the gap S* closes."""
+    closure_interval: tuple[float, float]
+    reset: dict[str, float]
+    """Factor -> share of the gap that returns when it alone is reset to nominal in S*."""
+    reset_interval: dict[str, tuple[float, float]]
+    shapley: dict[str, float]
+    """Factor -> exact Shapley value of the closure over the factors that matter; they sum
+    to :attr:`closure`."""
+    shapley_interval: dict[str, tuple[float, float]]
+    path: list[dict]
+    """The ascent's steps (:func:`calibrate`)."""
+    sets: int
+    """Distinct assignments scored."""
+
+    @property
+    def unexplained(self) -> float:
+        """Share of the gap S* leaves (1 - :attr:`closure`, at least 0)."""
+        return max(0.0, 1.0 - self.closure)
+
+    def stage_shares(self) -> dict[str, float]:
+        """Stage -> share of the gap its factors close (Shapley values summed), largest first."""
+        shares: dict[str, float] = {}
+        for name, value in self.shapley.items():
+            stage = self.factors[name]
+            shares[stage] = shares.get(stage, 0.0) + value
+        return dict(sorted(shares.items(), key=lambda kv: -kv[1]))
+
+    def sentence(self) -> str:
+        """The answer in words: the factors with their shares, then the unexplained rest."""
+        if not self.shapley:
+            return (
+                "no combination of candidates closes a share of the gap that matters: "
+                f"{100 * self.unexplained:.0f} % is unexplained"
+            )
+        parts = [
+            f"{100 * v:.0f} % {self.factors[n]} ({n} at {self.strengths[n]!r})"
+            for n, v in sorted(self.shapley.items(), key=lambda kv: -kv[1])
+        ]
+        return (
+            f"the calibrated simulator closes {100 * self.closure:.0f} % of the gap: "
+            + ", ".join(parts)
+            + f"; {100 * self.unexplained:.0f} % is unexplained"
+        )
+
+    def to_json(self) -> dict:
+        """Plain JSON (strengths as given, intervals as lists)."""
+        out = dataclasses.asdict(self)
+        for key in ("reset_interval", "shapley_interval"):
+            out[key] = {k: list(v) for k, v in out[key].items()}
+        out["closure_interval"] = list(self.closure_interval)
+        out["unexplained"] = self.unexplained
+        out["stage_shares"] = self.stage_shares()
+        out["sentence"] = self.sentence()
+        return out
+
+    @classmethod
+    def from_json(cls, data: dict) -> JointFit:
+        """The fit :meth:`to_json` wrote."""
+
+        def number(v) -> float:
+            return math.nan if v is None else float(v)
+
+        def pairs(values: dict) -> dict[str, tuple[float, float]]:
+            return {k: (number(v[0]), number(v[1])) for k, v in values.items()}
+
+        return cls(
+            factors=dict(data["factors"]), strengths=dict(data["strengths"]),
+            closure=number(data["closure"]),
+            closure_interval=(number(data["closure_interval"][0]),
+                              number(data["closure_interval"][1])),
+            reset={k: number(v) for k, v in data["reset"].items()},
+            reset_interval=pairs(data["reset_interval"]),
+            shapley={k: number(v) for k, v in data["shapley"].items()},
+            shapley_interval=pairs(data["shapley_interval"]), path=list(data["path"]),
+            sets=int(data["sets"]),
+        )  # fmt: skip
+
+
+def attribute(
+    calibrated: Assignment, value: Value, evaluate: Evaluate, *, matters: float = MATTERS
+) -> tuple[dict, dict, dict, dict, Assignment, Value]:
+    """Reset each factor of ``calibrated`` alone, keep those that matter, Shapley over them.
+
+    Returns:
+        (reset, reset intervals, Shapley values, Shapley intervals, the assignment of the
+        factors that matter, its value).
+    """
+    strengths = dict(calibrated)
+    alone = evaluate([assignment({**strengths, n: None}) for n in strengths])
+    reset = {n: value.closure - v.closure for n, v in zip(strengths, alone, strict=True)}
+    reset_interval = {
+        n: _interval(value.replicates - v.replicates)
+        for n, v in zip(strengths, alone, strict=True)
+    }
+    kept = {n: s for n, s in strengths.items() if reset[n] >= matters}
+    players = sorted(kept)
+    coalitions = [frozenset(c) for k in range(len(players) + 1)
+                  for c in itertools.combinations(players, k)]  # fmt: skip
+    values = evaluate([assignment({n: kept[n] for n in c}) for c in coalitions])
+    by_coalition = dict(zip(coalitions, values, strict=True))
+    if not players:
+        return reset, reset_interval, {}, {}, (), _nominal(len(value.replicates))
+    point = shapley_values(players, {c: v.closure for c, v in by_coalition.items()})
+    draws = np.stack([
+        list(shapley_values(players, {c: float(v.replicates[b])
+                                      for c, v in by_coalition.items()}).values())
+        for b in range(len(value.replicates))
+    ])  # fmt: skip
+    intervals = {n: _interval(draws[:, i]) for i, n in enumerate(players)}  # players' order
+    full = by_coalition[frozenset(players)]
+    return reset, reset_interval, point, intervals, assignment(kept), full
+
+
+def fit_jointly(
+    factors: Sequence[Factor],
+    evaluate: Evaluate,
+    *,
+    rounds: int = 2,
+    tolerance: float = JOINT_TOLERANCE,
+    matters: float = MATTERS,
+) -> JointFit:
+    """:func:`calibrate`, then :func:`attribute` at the calibrated point.
+
+    ``evaluate`` is wrapped in a memo, so an assignment met twice (nominal in every batch,
+    S* again during attribution) is scored once.
+    """
+    memo: dict[Assignment, Value] = {}
+
+    def cached(batch: Iterable[Assignment]) -> list[Value]:
+        batch = list(batch)
+        todo = list(dict.fromkeys(a for a in batch if a not in memo))
+        if todo:
+            memo.update(zip(todo, evaluate(todo), strict=True))
+        return [memo[a] for a in batch]
+
+    calibrated, value, path = calibrate(factors, cached, rounds=rounds, tolerance=tolerance)
+    reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
+        calibrated, value, cached, matters=matters
+    )
+    return JointFit(
+        factors={f.name: f.stage for f in factors}, strengths=dict(kept),
+        closure=full.closure, closure_interval=_interval(full.replicates),
+        reset=reset, reset_interval=reset_interval, shapley=shapley,
+        shapley_interval=shapley_interval, path=path, sets=len(memo),
+    )  # fmt: skip
