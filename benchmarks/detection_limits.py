@@ -248,7 +248,8 @@ def main(argv: list[str] | None = None) -> None:
     use_process_threads(1)
     from sim2real.candidates import candidate_library
     from sim2real.pipeline import load_run
-    from sim2real.study.power import nominal_draws, pooled_detection, report_real_features
+    from sim2real.reopen import report_real_features
+    from sim2real.study.power import nominal_draws, pooled_detection
     from sim2real.study.seal import seal_set
     from sim2real.study.validate import _diagnosed, load_budget
 

@@ -219,6 +219,18 @@ def _sim_key(job: SetJob, context: SetContext) -> str:
     )  # fmt: skip
 
 
+def nominal_path(spec: DatasetSpec, context: SetContext) -> Path:
+    """Where the nominal set S's features are cached."""
+    return _cache_path(context, _sim_key(SetJob("S", spec), context))
+
+
+def assignment_job(spec: DatasetSpec, library: dict[str, Candidate], chosen: Assignment) -> SetJob:
+    """The set of S with every candidate of ``chosen`` at its strength (labelled by them)."""
+    for name, value in chosen:
+        spec = library[name].apply(spec, value)
+    return SetJob("joint:" + "+".join(_label(library[n], v) for n, v in chosen), spec)
+
+
 def build_set(job: SetJob, context: SetContext, threads: int = 1) -> tuple[str, dict]:
     """Features of one simulated set (from the cache when present); returns (path, seconds).
 
@@ -242,7 +254,12 @@ def build_set(job: SetJob, context: SetContext, threads: int = 1) -> tuple[str, 
     }
 
 
-def _run_jobs(jobs: list[SetJob], context: SetContext, n_jobs: int, progress: bool, timing: dict):
+def run_jobs(jobs: list[SetJob], context: SetContext, n_jobs: int, progress: bool, timing: dict):
+    """Build the sets of ``jobs`` not yet cached (in ``n_jobs`` worker processes).
+
+    Returns ``({label: features}, how many came from the cache)``; adds seconds per step to
+    ``timing``.
+    """
     from tqdm.auto import tqdm
 
     todo = [j for j in jobs if not _cache_path(context, _sim_key(j, context)).is_file()]
@@ -371,19 +388,19 @@ def run_diagnosis(
     tick = time.perf_counter()
     real_features = real_ladder(real_dir, real, context, fps=spec.preset.fps,
                                 max_clips=budget.clips_per_sim)  # fmt: skip
-    nominal_path = _cache_path(context, _sim_key(SetJob("S", spec), context))
-    if nominal_path.is_file():
-        nominal = LadderFeatures.load(nominal_path)
+    cached_nominal = nominal_path(spec, context)
+    if cached_nominal.is_file():
+        nominal = LadderFeatures.load(cached_nominal)
     else:
         nominal = ladder_features(nominal_clips, context.box, net, device=device)
-        nominal.save(nominal_path)
+        nominal.save(cached_nominal)
     timing["features"] = time.perf_counter() - tick
 
     # S': the nominal scene under other simulation seeds (the null candidate, and the gap
     # test's second nominal draw).
     jobs = [SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))]
     jobs += _candidate_jobs(spec, plan)
-    sets, cached = _run_jobs(jobs, context, n_jobs, progress, timing)
+    sets, cached = run_jobs(jobs, context, n_jobs, progress, timing)
 
     tick = time.perf_counter()
     settings = {"n_perm": budget.n_perm, "n_boot": budget.n_boot, "n_floor": budget.n_floor,
@@ -417,7 +434,7 @@ def run_diagnosis(
     def build(more_jobs: list[SetJob]) -> None:
         nonlocal cached
         more_jobs = [j for j in more_jobs if j.label not in sets]
-        more, more_cached = _run_jobs(more_jobs, context, n_jobs, progress, timing)
+        more, more_cached = run_jobs(more_jobs, context, n_jobs, progress, timing)
         sets.update(more)
         jobs.extend(more_jobs)
         cached += more_cached
@@ -475,7 +492,7 @@ def run_diagnosis(
     )  # fmt: skip
     tick = time.perf_counter()
     joint = _joint_fit(
-        plan, results, null, spec, budget, build=build, sets=sets, nominal=nominal,
+        plan, results, null, spec, library, budget, build=build, sets=sets, nominal=nominal,
         value_of=lambda built: closure_values(built, nominal, real_features, gaps, rungs, before,
                                               n_boot=budget.n_boot, seed=seed),
     )  # fmt: skip
@@ -556,7 +573,7 @@ def _stage_swaps(
         for c in library.values() if c.stage == "camera" and not c.binary and not c.choices
     ]  # fmt: skip
     built = [j for j in _candidate_jobs(spec, camera) if j.label not in sets]
-    more, cached = _run_jobs(built, context, n_jobs, progress, timing)
+    more, cached = run_jobs(built, context, n_jobs, progress, timing)
     sets.update(more)
     rng = np.random.default_rng([seed, 11])
     rivals = {c.name: [sets[_label(c, v)] for v in values] for c, values in plan}
@@ -575,7 +592,7 @@ def _stage_swaps(
         for candidate, value in members:
             swapped = candidate.apply(swapped, value)
         job = SetJob(label, swapped)
-        more, hit = _run_jobs([job], context, n_jobs, progress, timing)
+        more, hit = run_jobs([job], context, n_jobs, progress, timing)
         built.append(job)
         cached += hit
         camera_entry["set"] = label
@@ -778,26 +795,18 @@ def _joint_factors(plan: list[tuple], results: list, null, budget: Budget) -> li
     return factors
 
 
-def _joint_fit(plan, results, null, spec, budget: Budget, *, build, sets, nominal, value_of):
+def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, sets, nominal,
+               value_of):  # fmt: skip
     """The joint calibration and attribution (``None`` with fewer than two factors)."""
     factors = _joint_factors(plan, results, null, budget)
     if len(factors) < 2:
         return None
-    by_name = {candidate.name: candidate for candidate, _ in plan}
-
-    def label(chosen: Assignment) -> str:
-        return "joint:" + "+".join(_label(by_name[n], v) for n, v in chosen)
 
     def evaluate(batch: list[Assignment]) -> list:
-        jobs = []
-        for chosen in batch:
-            joint_spec = spec
-            for n, v in chosen:
-                joint_spec = by_name[n].apply(joint_spec, v)
-            if chosen:
-                jobs.append(SetJob(label(chosen), joint_spec))
+        jobs = [assignment_job(spec, library, chosen) for chosen in batch if chosen]
         build(jobs)
-        return value_of([sets[label(c)] if c else nominal for c in batch])
+        labels = iter(j.label for j in jobs)
+        return value_of([sets[next(labels)] if chosen else nominal for chosen in batch])
 
     return fit_jointly(factors, evaluate, rounds=budget.joint_rounds)
 

@@ -296,7 +296,8 @@ def _joint_lines(joint: JointFit | None) -> list[str]:
     if joint is None:
         return []
     rows = [
-        [name, stage, _fmt(joint.strengths.get(name)) if name in joint.strengths else "nominal",
+        [name, stage, ("nominal" if name not in joint.strengths
+                       else "on" if joint.strengths[name] is None else _fmt(joint.strengths[name])),
          f"{100 * joint.shapley[name]:.0f} % {_percent_ci(joint.shapley_interval[name])}"
          if name in joint.shapley else "–",
          f"{100 * joint.reset[name]:.0f} % {_percent_ci(joint.reset_interval[name])}"

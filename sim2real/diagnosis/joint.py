@@ -31,8 +31,8 @@ from .coalitions import shapley_values
 from .scoring import ReferenceScores, _auc_floor, candidate_result
 
 __all__ = [
-    "JOINT_TOLERANCE", "MATTERS", "Assignment", "Factor", "JointFit", "Value", "assignment",
-    "attribute", "calibrate", "closure_values", "fit_jointly",
+    "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Value",
+    "assignment", "attribute", "calibrate", "closure_values", "fit_jointly",
 ]  # fmt: skip
 
 
@@ -44,12 +44,29 @@ MATTERS = 0.05
 gap; only factors that matter get Shapley values and stay in S*."""
 
 Assignment = tuple[tuple[str, object], ...]
-"""The applied factors and their strengths, sorted by name (absent factors are nominal)."""
+"""The applied factors and their strengths, sorted by name (absent factors are nominal). A
+switch's strength is ``None``: on."""
+
+
+class _Nominal:
+    """The marker of a factor left at nominal (absent from an assignment)."""
+
+    def __repr__(self) -> str:
+        return "nominal"
+
+
+NOMINAL = _Nominal()
+"""A factor's strength when it is left out (a switch that is on has strength ``None``)."""
 
 
 def assignment(strengths: dict[str, object]) -> Assignment:
-    """The canonical form of ``{factor: strength}`` (``None`` strengths are left out)."""
-    return tuple(sorted((k, v) for k, v in strengths.items() if v is not None))
+    """The canonical form of ``{factor: strength}`` (:data:`NOMINAL` entries left out)."""
+    return tuple(sorted((k, v) for k, v in strengths.items() if v is not NOMINAL))
+
+
+def _shown(value) -> object:
+    """A strength as the report shows it: ``on`` for a switch, ``nominal`` when left out."""
+    return "on" if value is None else "nominal" if value is NOMINAL else value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,9 +87,9 @@ class Factor:
     name: str
     stage: str
     options: tuple
-    """Strengths the ascent tries (a switch: ``(True,)``); nominal is always tried too."""
-    start: object | None = None
-    """Where the ascent starts: the single-candidate fit, or ``None`` (nominal)."""
+    """Strengths the ascent tries (a switch: ``(None,)``, on); nominal is always tried too."""
+    start: object = NOMINAL
+    """Where the ascent starts: the single-candidate fit, or :data:`NOMINAL`."""
 
     def __post_init__(self):
         if not self.options:
@@ -164,7 +181,7 @@ def calibrate(
     for round_ in range(rounds):
         moved = False
         for factor in factors:
-            tried = [None, *factor.options]
+            tried = [NOMINAL, *factor.options]
             batch = [assignment({**current, factor.name: s}) for s in tried]
             values = evaluate(batch)
             closures = [v.closure for v in values]
@@ -175,8 +192,9 @@ def calibrate(
                 value = values[best]
                 moved = True
             path.append({
-                "round": round_ + 1, "factor": factor.name, "tried": list(tried),
-                "closure": closures, "kept": current[factor.name],
+                "round": round_ + 1, "factor": factor.name,
+                "tried": [_shown(t) for t in tried], "closure": closures,
+                "kept": _shown(current[factor.name]),
             })  # fmt: skip
         if not moved:
             break
@@ -198,7 +216,8 @@ class JointFit:
     factors: dict[str, str]
     """Every factor fitted (name -> stage), in the order the ascent visited them."""
     strengths: dict[str, object]
-    """The calibrated strengths of the factors that matter (the others are nominal)."""
+    """The calibrated strengths of the factors that matter (the others are nominal; a
+    switch's is ``None``, on)."""
     closure: float
     """Share of the gap S* closes."""
     closure_interval: tuple[float, float]
@@ -235,7 +254,8 @@ class JointFit:
                 f"{100 * self.unexplained:.0f} % is unexplained"
             )
         parts = [
-            f"{100 * v:.0f} % {self.factors[n]} ({n} at {self.strengths[n]!r})"
+            f"{100 * v:.0f} % {self.factors[n]} ({n}"
+            + ("" if self.strengths[n] is None else f" at {self.strengths[n]!r}") + ")"
             for n, v in sorted(self.shapley.items(), key=lambda kv: -kv[1])
         ]
         return (
@@ -288,7 +308,7 @@ def attribute(
         factors that matter, its value).
     """
     strengths = dict(calibrated)
-    alone = evaluate([assignment({**strengths, n: None}) for n in strengths])
+    alone = evaluate([assignment({**strengths, n: NOMINAL}) for n in strengths])
     reset = {n: value.closure - v.closure for n, v in zip(strengths, alone, strict=True)}
     reset_interval = {
         n: _interval(value.replicates - v.replicates)

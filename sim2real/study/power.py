@@ -28,14 +28,14 @@ from common.paths import check_output_dir
 from datasets.spec import DatasetSpec
 
 from ..diagnosis import localise, rung_gaps
-from ..domains import real_clips
-from ..ladder import LadderFeatures, file_digest
-from ..pipeline import NULL_SEED_OFFSET, SetContext, SetJob, _run_jobs, real_ladder
+from ..ladder import LadderFeatures
+from ..pipeline import NULL_SEED_OFFSET, SetJob, run_jobs
+from ..reopen import report_context, report_real_features
 from ..report import read_report
 from ..result import Diagnosis, DiagnosisInputs
 from ..rungs import hand_rung_names
 
-__all__ = ["draw_spec", "nominal_draws", "pooled_detection", "report_real_features"]
+__all__ = ["draw_spec", "nominal_draws", "pooled_detection"]
 
 
 def draw_spec(spec: DatasetSpec, draw: int) -> DatasetSpec:
@@ -75,38 +75,14 @@ def pooled_detection(
     return out
 
 
-def _context(inputs: DiagnosisInputs) -> SetContext:
-    return SetContext(
-        box=tuple(inputs.box), checkpoint=inputs.checkpoint,
-        checkpoint_digest=file_digest(Path(inputs.checkpoint)),
-        mesh_cache=inputs.mesh_cache, cache_dir=inputs.cache_dir,
-        clip_len=inputs.clip_len, clip_stride=inputs.clip_stride, device="cpu",
-    )  # fmt: skip
-
-
-def report_real_features(inputs: DiagnosisInputs) -> LadderFeatures:
-    """The real clips of a stored diagnosis (its report's ``inputs``) on every rung.
-
-    Cut and boxed as that diagnosis cut them, and read from its feature cache when present.
-    """
-    context = _context(inputs)
-    real_dir = Path(inputs.real_dir)
-    size = inputs.nominal_spec["camera"]["height"]
-    fps = inputs.nominal_spec["preset"]["fps"]
-    clips_per = inputs.budget_settings["clips_per_sim"]
-    real = real_clips(real_dir, size=size, clip_len=context.clip_len,
-                      clip_stride=context.clip_stride, fps=fps, max_clips_per_video=clips_per)
-    return real_ladder(real_dir, real, context, fps=fps, max_clips=clips_per)
-
-
 def nominal_draws(
     inputs: DiagnosisInputs, count: int, *, n_jobs: int = 1, progress: bool = False
 ) -> list[LadderFeatures]:
     """The first ``count`` nominal draws of a stored diagnosis (S, S', ...), built or cached."""
-    context = _context(inputs)
+    context = report_context(inputs)
     spec = DatasetSpec.from_json(inputs.nominal_spec)
     jobs = [SetJob(f"draw{d}", draw_spec(spec, d)) for d in range(count)]
-    sets, _ = _run_jobs(jobs, context, n_jobs, progress, {})
+    sets, _ = run_jobs(jobs, context, n_jobs, progress, {})
     return [sets[j.label] for j in jobs]
 
 

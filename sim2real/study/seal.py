@@ -1,15 +1,16 @@
 """Sealed pseudo-real sets: footage from our own generator with a withheld effect.
 
-``python -m sim2real.study.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]`` draws,
-from the seed alone, one or two effects of the candidate library at strengths inside their
-plausible ranges (or an effect outside the library, made as a camera or the scene makes it,
-:mod:`.open_set`: barrel lens distortion, exposure flicker, a tone curve, a stronger wind),
-plus nuisance differences (fresh textures and backgrounds, a slightly moved camera, the wind
-direction's jitter off nominal) and continuous materials
-(stretch and bend multipliers log-uniform over the subspace's span, areal density x [0.8, 1.25]). It
-writes only what a real set has: one folder of PNG frames per video and ``labels.csv``
-(video, stiffness, density, wind, fps), with neutral names. The answer goes to a separate
-JSON file (default ``DIR.answer.json``) whose sha256 is printed; the diagnosis never reads it.
+``python -m sim2real.study.seal --seed N --out DIR [--data-dir TRAINING_DATA] [--kind ...]``
+draws, from the seed alone, one or two effects of the candidate library (``--kind multi``:
+3-6 across the stages) at strengths inside their plausible ranges (or an effect outside the
+library, made as a camera or the scene makes it, :mod:`.open_set`: barrel lens distortion,
+exposure flicker, a tone curve, a stronger wind), plus nuisance differences (fresh textures
+and backgrounds, a slightly moved camera, the wind direction's jitter off nominal) and
+continuous materials (stretch and bend multipliers log-uniform over the subspace's span,
+areal density x [0.8, 1.25]). It writes only what a real set has: one folder of PNG frames
+per video and ``labels.csv`` (video, stiffness, density, wind, fps), with neutral names. The
+answer goes to a separate JSON file (default ``DIR.answer.json``) whose sha256 is printed;
+the diagnosis never reads it.
 """
 
 from __future__ import annotations
@@ -42,8 +43,12 @@ from .open_set import OPEN_SET_EFFECTS, render_sealed_video
 
 __all__ = ["OPEN_SET_EFFECTS", "SEAL_KINDS", "draw_answer", "seal_set"]
 
-SEAL_KINDS = ("single", "pair", "open")
+SEAL_KINDS = ("single", "pair", "open", "multi", "twin")
+_DRAWN_KINDS = ("single", "pair", "open")
+"""Kinds a seed draws when none is given (``multi`` and ``twin`` are asked for by name)."""
 _KIND_WEIGHTS = (0.5, 0.25, 0.25)
+MULTI_EFFECTS = (3, 6)
+"""A ``multi`` set's count of simultaneous library effects, drawn uniformly (inclusive)."""
 _SEAL_STREAM = 7
 
 
@@ -81,16 +86,42 @@ def _draw_strength(candidate: Candidate, rng: np.random.Generator):
     return round(value) if candidate.integer else float(f"{value:.4g}")
 
 
+def _multi_effects(library: dict[str, Candidate], rng: np.random.Generator) -> list[Candidate]:
+    """3-6 library effects (:data:`MULTI_EFFECTS`), one from each stage first, then any.
+
+    At most one effect per setting (two effects that set one field cannot both hold); in the
+    order of the library's names.
+    """
+    low, high = MULTI_EFFECTS
+    count = int(rng.integers(low, high + 1))
+    names = sorted(library)
+    stages = sorted({library[n].stage for n in names})
+    stages = [stages[int(i)] for i in rng.permutation(len(stages))]  # 3 effects: 3 of 4 stages
+    order = [names[int(i)] for i in rng.permutation(len(names))]
+    first = [next(n for n in order if library[n].stage == stage) for stage in stages]
+    picked, settings = [], set()
+    for name in [*first, *order]:
+        setting = (library[name].registry, library[name].field)
+        if len(picked) == count or setting in settings:
+            continue
+        picked.append(name)
+        settings.add(setting)
+    return [library[n] for n in sorted(picked)]
+
+
 def draw_answer(
     seed: int, library: dict[str, Candidate], kind: str | None = None, effect: str | None = None
 ) -> dict:
     """The withheld effect(s) of sealed set ``seed`` (and its kind) drawn from the seed.
 
+    ``multi``: several library effects at once, across the stages (:func:`_multi_effects`);
+    ``twin``: none (only the nuisances and materials every set has).
+
     ``effect`` fixes the library effect of a ``single`` set (its strength is still drawn), so
     that a validation can cover every switch.
     """
     rng = np.random.default_rng([seed, _SEAL_STREAM])
-    drawn_kind = SEAL_KINDS[int(rng.choice(len(SEAL_KINDS), p=_KIND_WEIGHTS))]
+    drawn_kind = _DRAWN_KINDS[int(rng.choice(len(_DRAWN_KINDS), p=_KIND_WEIGHTS))]
     kind = kind or drawn_kind
     if kind not in SEAL_KINDS:
         raise ValueError(f"kind must be one of {SEAL_KINDS}, got {kind!r}")
@@ -102,6 +133,14 @@ def draw_answer(
         stage, (low, high) = OPEN_SET_EFFECTS[name]
         strength = float(f"{rng.uniform(low, high):.4g}")
         effects.append({"name": name, "stage": stage, "strength": strength, "library": False})
+    elif kind == "twin":
+        pass
+    elif kind == "multi":
+        for candidate in _multi_effects(library, rng):
+            effects.append({
+                "name": candidate.name, "stage": candidate.stage,
+                "strength": _draw_strength(candidate, rng), "library": True,
+            })  # fmt: skip
     else:
         count = 1 if kind == "single" else 2
         picked = rng.choice(len(names), size=count, replace=False)
@@ -167,7 +206,8 @@ def seal_set(
         videos: Videos; wind levels cycle W1, W2, W3 (Bouman et al.: 30 fabrics x 3 winds).
         clips_per_video: Clips of ``clip_len`` frames each video is long enough for.
         clip_len: Frames per clip.
-        kind: ``single``, ``pair`` or ``open`` (default: drawn from the seed).
+        kind: ``single``, ``pair``, ``open``, ``multi`` or ``twin`` (default: drawn from the
+            seed among the first three).
         answer: A given answer instead of a drawn one (tests plant a known effect).
         answer_path: Where the answer goes (default: ``<out>.answer.json``).
         overwrite: Replace an existing ``out``.

@@ -44,6 +44,7 @@ from ..diagnosis import OPEN_SET_MIN_CLOSURE
 from ..pipeline import Budget, load_run, run_diagnosis
 from ..report import read_report
 from ..result import Diagnosis
+from .multi import score_multi, truth_attribution
 from .rescore import decided_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
@@ -80,8 +81,11 @@ def ranks(result: Diagnosis) -> bool:
     )
 
 
-def score_set(result: Diagnosis, answer: dict) -> dict:
-    """One sealed set's scores (answer opened only here)."""
+def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) -> dict:
+    """One sealed set's scores (answer opened only here).
+
+    ``attribution``: a ``multi`` set's :func:`~sim2real.study.multi.truth_attribution`.
+    """
     truth = [e["name"] for e in answer["effects"] if e["library"]]
     stages = {e["stage"] for e in answer["effects"]}
     ranking = result.ranking
@@ -97,6 +101,8 @@ def score_set(result: Diagnosis, answer: dict) -> dict:
     if answer["kind"] == "open":
         row["false_attribution"] = bool(ranking.explained)
         return row
+    if answer["kind"] in ("multi", "twin"):
+        return {**row, **score_multi(result, answer, attribution)}
     found = result.detectability
     if found is not None:  # reports written before the analysis existed have none
         row["truth_detectable"] = any(
@@ -180,7 +186,14 @@ def summarise(rows: list[dict]) -> dict:
     closed = [r["gap_closed"] for r in rows if r.get("gap_closed") is not None]
     out["gap_closed_median"] = float(np.median(closed)) if closed else None
     out["budgets"] = sorted({r["budget"] for r in rows if r.get("budget")})
-    out["open_false_attribution"], out["open_n"] = rate("false_attribution")
+    out["open_false_attribution"], out["open_n"] = rate("false_attribution", ("open",))
+    out["twin_false_attribution"], out["twin_n"] = rate("false_attribution", ("twin",))
+    for key in ("factor_f1", "factor_f1_matter", "factor_precision", "factor_recall"):
+        out[key], out[f"{key}_n"] = rate(key, ("multi",))
+    errors = [r["stage_share_error_pts"] for r in rows
+              if r.get("stage_share_error_pts") is not None]  # fmt: skip
+    out["stage_share_error_pts_median"] = float(np.median(errors)) if errors else None
+    out["stage_share_error_pts_max"] = float(np.max(errors)) if errors else None
     for key in ("kendall_tau", "weighted_tau", "kendall_tau_all"):
         taus = [r[key] for r in rows if key in r]
         out[key] = float(np.mean(taus)) if taus else None
@@ -235,6 +248,9 @@ def _confusion_png(path: Path, rows: list[dict]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    rows = [r for r in rows if r["truth"]]  # effect-free twins have no withheld effect
+    if not rows:
+        return
     truths = sorted({r["truth"][0].split("=")[0] for r in rows})
     preds = sorted({r["predicted"] for r in rows} | set(truths))
     matrix = np.zeros((len(truths), len(preds)))
@@ -287,6 +303,7 @@ def _table(summary: dict, rows: list[dict]) -> str:
         f"| effect top-1 where a gap was found | – | {pct(summary['top1_detected'])} | "
         f"{summary['top1_detected_n']} |",
         *_detectability_rows(summary, pct),
+        *_multi_rows(summary, pct),
         "", "| seed | kind | withheld | diagnosed | stage | top-3 | gap closed |",
         "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
@@ -299,6 +316,28 @@ def _table(summary: dict, rows: list[dict]) -> str:
             f"{'–' if closed is None else f'{100 * closed:.0f} %'} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _multi_rows(summary: dict, pct) -> list[str]:
+    """The multi-effect and twin measures, where such sets were scored."""
+    if not summary.get("factor_f1_n") and not summary.get("twin_n"):
+        return []
+
+    def number(v, unit=""):
+        return "–" if v is None else f"{v:.2f}{unit}"
+
+    return [
+        f"| factor F1 (multi-effect sets) | >= 0.8 | {number(summary['factor_f1'])} | "
+        f"{summary['factor_f1_n']} |",
+        f"| factor F1 over the effects that matter | – | "
+        f"{number(summary['factor_f1_matter'])} | {summary['factor_f1_matter_n']} |",
+        f"| stage share error, median (points) | – | "
+        f"{number(summary['stage_share_error_pts_median'])} | {summary['factor_f1_matter_n']} |",
+        f"| stage share error, worst (points) | <= 15 | "
+        f"{number(summary['stage_share_error_pts_max'])} | {summary['factor_f1_matter_n']} |",
+        f"| effect-free twins: false attribution | <= 5 % | "
+        f"{pct(summary['twin_false_attribution'])} | {summary['twin_n']} |",
+    ]
 
 
 def _rescored_note(threshold: float, rows: list[dict]) -> str:
@@ -543,7 +582,9 @@ def main(argv: list[str] | None = None) -> None:
         if args.rescore:
             result = decided_again(result, min_closure=args.open_set_threshold)
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
-        row = score_set(result, answer)
+        truth = (truth_attribution(result, answer, n_jobs=args.n_jobs)
+                 if answer["kind"] == "multi" else None)  # fmt: skip
+        row = score_set(result, answer, truth)
         if args.rescore:
             row["replayed"] = result.ranking.replayed
         if len(reruns) > 1:

@@ -121,9 +121,10 @@ def test_a_synthetic_game_is_attributed_exactly():
         return [Value(sum(worth[n] for n, _ in a), np.full(7, sum(worth[n] for n, _ in a)))
                 for a in batch]  # fmt: skip
 
-    factors = [Factor(n, "physics", (True,)) for n in worth]
+    factors = [Factor(n, "physics", (None,)) for n in worth]  # switches: on is None
     fit = fit_jointly(factors, evaluate)
-    assert fit.strengths == {"a": True, "b": True}  # c adds nothing: never switched on
+    assert fit.strengths == {"a": None, "b": None}  # c adds nothing: never switched on
+    assert fit.path[0]["tried"] == ["nominal", "on"] and fit.path[0]["kept"] == "on"
     assert fit.shapley == pytest.approx({"a": 0.5, "b": 0.3})
     assert fit.reset == pytest.approx({"a": 0.5, "b": 0.3})
     assert fit.unexplained == pytest.approx(0.2)

@@ -522,3 +522,34 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
         validate([*blind, "--finished-only", "--open-set-threshold", "0.5"])
     assert stop.value.code == 2
     assert "applies only with --rescore" in capsys.readouterr().err
+
+
+def test_a_stored_diagnosis_reopens_and_scores_as_it_did(world, tmp_path):
+    """Reopened from its report and the cache, a diagnosis scores a candidate set exactly as
+    it scored it, and any combination of candidates besides."""
+    from sim2real.diagnosis.joint import assignment
+    from sim2real.reopen import reopen
+
+    out = tmp_path / "report"
+    _diagnose(world, out)  # every set comes from the cache of the earlier tests
+    stored = Diagnosis.from_json(json.loads((out / "report.json").read_text()))
+    reopened = reopen(stored)
+    noise = stored.candidates["visual.sensor_noise"]
+    best = noise["strengths"][noise["best"]]
+    both = assignment({"visual.sensor_noise": best, "visual.white_balance": 0.3})
+    nominal, alone, together = reopened.values([(), assignment({"visual.sensor_noise": best}),
+                                                both])  # fmt: skip
+    assert nominal.closure == 0.0
+    assert alone.closure == pytest.approx(noise["best_score"], abs=1e-12)
+    assert np.isfinite(together.closure) and together.replicates.shape == (BUDGET.n_boot,)
+    (measured,) = reopened.classifier([assignment({"visual.sensor_noise": best})])
+    assert set(measured) == set(stored.scored_rungs)
+    assert all(0.0 <= m["auc"] <= 1.0 for m in measured.values())
+    # the sealed truth, attributed as the diagnosis attributes its own fits
+    from sim2real.study.multi import truth_attribution
+
+    answer = json.loads(Path(world["answer"]).read_text())
+    truth = truth_attribution(stored, answer)
+    assert truth["matter"] == ["visual.sensor_noise"] and truth["closure"] > 0.5
+    assert truth["shapley"]["visual.sensor_noise"] == pytest.approx(truth["closure"])
+    assert truth["stage_shares"] == {"camera": pytest.approx(truth["closure"])}

@@ -1,0 +1,105 @@
+"""Scoring sealed sets with several withheld effects (``multi``) and none at all (``twin``).
+
+The diagnosis answers such a set with its joint calibration (:mod:`sim2real.diagnosis.joint`):
+the factors that matter, each with its share of the gap. Scored against the answer:
+
+* which factors: precision and recall of the named factors against the withheld library
+  effects, their F1, and the F1 against only the withheld effects that matter (resetting one
+  at the truth gives back at least :data:`~sim2real.diagnosis.joint.MATTERS` of the gap; an
+  effect that moves nothing cannot be found);
+* how much: the stage shares of the gap against the truth's, in points. The truth's shares
+  are measured after the answer is opened: the withheld effects at their sealed strengths are
+  built and attributed exactly as the diagnosis attributes its own fit (reset and exact
+  Shapley values, :func:`truth_attribution`);
+* an effect-free twin counts as a false attribution when any factor or effect is named.
+"""
+
+from __future__ import annotations
+
+from ..diagnosis.joint import MATTERS, assignment, attribute
+from ..reopen import reopen
+from ..result import Diagnosis
+
+__all__ = ["named_factors", "predicted_stage_shares", "score_multi", "truth_attribution"]
+
+
+def named_factors(result: Diagnosis) -> set[str]:
+    """The factors a diagnosis names: its joint fit's, else its named effect (or coalition)."""
+    if result.joint is not None and result.joint.strengths:
+        return set(result.joint.strengths)
+    ranking = result.ranking
+    if not ranking.explained:
+        return set()
+    return set(ranking.explained_by or [ranking.top])
+
+
+def predicted_stage_shares(result: Diagnosis) -> dict[str, float]:
+    """Stage -> share of the gap the diagnosis puts there."""
+    if result.joint is not None and result.joint.shapley:
+        return result.joint.stage_shares()
+    ranking = result.ranking
+    if not ranking.explained:
+        return {}
+    top = result.candidates[ranking.top]
+    return {top["stage"]: float(top["best_score"])}
+
+
+def truth_attribution(result: Diagnosis, answer: dict, *, n_jobs: int = 1) -> dict | None:
+    """The withheld library effects at their sealed strengths, attributed against R.
+
+    ``None`` when the set has none or the diagnosis found no gap to score against.
+    """
+    effects = {e["name"]: e["strength"] for e in answer["effects"] if e["library"]}
+    if not effects or not result.scored_rungs:
+        return None
+    reopened = reopen(result)
+
+    def evaluate(batch):
+        return reopened.values(batch, n_jobs=n_jobs)
+
+    truth = assignment(effects)
+    (value,) = evaluate([truth])
+    reset, _, shapley, _, kept, full = attribute(truth, value, evaluate, matters=MATTERS)
+    stages = {e["name"]: e["stage"] for e in answer["effects"]}
+    shares: dict[str, float] = {}
+    for name, share in shapley.items():
+        shares[stages[name]] = shares.get(stages[name], 0.0) + share
+    return {
+        "closure": value.closure, "reset": reset, "shapley": shapley,
+        "matter": sorted(n for n, _ in kept), "stage_shares": shares,
+        "closure_of_those_that_matter": full.closure,
+    }  # fmt: skip
+
+
+def _f1(named: set[str], truth: set[str]) -> tuple[float, float, float]:
+    hit = len(named & truth)
+    precision = hit / len(named) if named else (1.0 if not truth else 0.0)
+    recall = hit / len(truth) if truth else 1.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    return precision, recall, f1
+
+
+def score_multi(result: Diagnosis, answer: dict, truth: dict | None) -> dict:
+    """The factor and share scores of a ``multi`` or ``twin`` set (``truth``: its attribution)."""
+    named = named_factors(result)
+    withheld = {e["name"] for e in answer["effects"] if e["library"]}
+    row: dict = {"named": sorted(named)}
+    if answer["kind"] == "twin":
+        row["false_attribution"] = bool(named)
+        return row
+    row["factor_precision"], row["factor_recall"], row["factor_f1"] = _f1(named, withheld)
+    row["joint_closure"] = None if result.joint is None else result.joint.closure
+    if truth is None:
+        return row
+    row["truth_closure"] = truth["closure"]
+    row["truth_matter"] = truth["matter"]
+    row["factor_f1_matter"] = _f1(named, set(truth["matter"]))[2]
+    predicted = predicted_stage_shares(result)
+    stages = set(predicted) | set(truth["stage_shares"])
+    row["stage_share_error_pts"] = max(
+        (100 * abs(predicted.get(s, 0.0) - truth["stage_shares"].get(s, 0.0)) for s in stages),
+        default=0.0,
+    )
+    row["stage_shares"] = predicted
+    row["truth_stage_shares"] = truth["stage_shares"]
+    return row

@@ -1,0 +1,98 @@
+"""Multi-effect and effect-free sealed sets: the draw, the factor and stage-share scores."""
+
+import dataclasses
+
+import pytest
+
+from sim2real.candidates import candidate_library
+from sim2real.diagnosis.joint import JointFit
+from sim2real.study.multi import named_factors, predicted_stage_shares, score_multi
+from sim2real.study.seal import MULTI_EFFECTS, _base_spec, draw_answer
+from sim2real.study.validate import score_set, summarise
+from tests.sim2real.reports import as_diagnosis
+
+LIBRARY = candidate_library(_base_spec(None, 1))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_multi_set_withholds_several_effects_across_the_stages(seed):
+    answer = draw_answer(seed, LIBRARY, "multi")
+    effects = answer["effects"]
+    low, high = MULTI_EFFECTS
+    assert low <= len(effects) <= high
+    assert len({e["stage"] for e in effects}) >= min(len(effects), 4) - 1 >= 2
+    settings = [(LIBRARY[e["name"]].registry, LIBRARY[e["name"]].field) for e in effects]
+    assert len(set(settings)) == len(settings)  # two effects never set one field
+    for e in effects:
+        LIBRARY[e["name"]].check_strength(e["strength"])
+    assert draw_answer(seed, LIBRARY, "multi") == answer  # the seed decides everything
+
+
+def test_stages_are_spread_over_many_sets_and_twins_withhold_nothing():
+    stages = [{e["stage"] for e in draw_answer(s, LIBRARY, "multi")["effects"]} for s in range(40)]
+    assert all(sum(stage in s for s in stages) >= 30 for stage in
+               ("physics", "scene", "appearance", "camera"))  # fmt: skip
+    assert draw_answer(3, LIBRARY, "twin")["effects"] == []
+    assert draw_answer(3, LIBRARY)["kind"] in ("single", "pair", "open")  # never drawn unasked
+
+
+def _joint(shapley: dict[str, float], stages: dict[str, str]) -> JointFit:
+    return JointFit(
+        factors=stages, strengths={n: 1.0 for n in shapley}, closure=sum(shapley.values()),
+        closure_interval=(0.0, 1.0), reset=dict(shapley),
+        reset_interval={n: (0.0, 1.0) for n in shapley}, shapley=shapley,
+        shapley_interval={n: (0.0, 1.0) for n in shapley}, path=[], sets=9,
+    )  # fmt: skip
+
+
+STAGES = {"physics.air_damping": "physics", "visual.sensor_noise": "camera",
+          "visual.specular": "appearance", "scene.size": "scene"}  # fmt: skip
+
+
+def _diagnosis(joint=None, top="visual.sensor_noise", explained=False):
+    result = as_diagnosis({
+        "ranking": {"ranking": [top], "top": top, "explained": explained},
+        "scored_rungs": ["pixel"],
+        "candidates": {top: {"stage": STAGES[top], "best_score": 0.3,
+                             "strength_interval": [1.0, 2.0]}},
+    })  # fmt: skip
+    return dataclasses.replace(result, joint=joint)
+
+
+def _multi_answer(*names):
+    effects = [{"name": n, "stage": STAGES[n], "strength": 1.0, "library": True} for n in names]
+    return {"seed": 7, "kind": "multi", "effects": effects}
+
+
+def test_factor_scores_and_stage_shares_against_the_truth():
+    joint = _joint({"physics.air_damping": 0.5, "visual.sensor_noise": 0.2,
+                    "visual.specular": 0.1}, STAGES)  # fmt: skip
+    result = _diagnosis(joint)
+    answer = _multi_answer("physics.air_damping", "visual.sensor_noise", "scene.size")
+    truth = {"closure": 0.9, "matter": ["physics.air_damping", "visual.sensor_noise"],
+             "stage_shares": {"physics": 0.6, "camera": 0.3}}  # fmt: skip
+    row = score_set(result, answer, truth)
+    assert row["factor_precision"] == pytest.approx(2 / 3)
+    assert row["factor_recall"] == pytest.approx(2 / 3)
+    assert row["factor_f1"] == pytest.approx(2 / 3)
+    assert row["factor_f1_matter"] == pytest.approx(0.8)  # 2 of 3 named, both that matter found
+    # physics 50 vs 60, camera 20 vs 30, appearance 10 vs 0: the worst is 10 points
+    assert row["stage_share_error_pts"] == pytest.approx(10.0)
+    summary = summarise([row, {**row, "seed": 8, "stage_share_error_pts": 30.0}])
+    assert summary["factor_f1"] == pytest.approx(2 / 3) and summary["factor_f1_n"] == 2
+    assert summary["stage_share_error_pts_max"] == 30.0
+
+
+def test_without_a_joint_fit_the_named_effect_counts_and_twins_score_false_attribution():
+    named = _diagnosis(None, explained=True)
+    assert named_factors(named) == {"visual.sensor_noise"}
+    assert predicted_stage_shares(named) == {"camera": 0.3}
+    assert named_factors(_diagnosis(None)) == set()
+    twin = {"seed": 9, "kind": "twin", "effects": []}
+    assert score_set(_diagnosis(None), twin)["false_attribution"] is False
+    assert score_set(named, twin)["false_attribution"] is True
+    flagged = score_multi(_diagnosis(_joint({"scene.size": 0.2}, STAGES)), twin, None)
+    assert flagged["false_attribution"] is True
+    summary = summarise([score_set(named, twin), score_set(_diagnosis(None), twin)])
+    assert summary["twin_false_attribution"] == 0.5 and summary["twin_n"] == 2
+    assert summary["open_n"] == 0
