@@ -16,7 +16,8 @@ from common.files import atomic_write_bytes
 from common.grid import ClassGrid
 
 __all__ = [
-    "confusion_png", "markdown_table", "scatter_png", "wind_label", "write_json", "write_text",
+    "MarkdownTable", "confusion_png", "markdown_table", "scatter_png", "wind_label", "write_json",
+    "write_text",
 ]  # fmt: skip
 
 
@@ -31,11 +32,21 @@ def write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
-def markdown_table(header: list[str], rows: list[list]) -> str:
+class MarkdownTable(str):
+    """A GitHub Markdown table as text that keeps its header and rows (for an HTML page)."""
+
+    header: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+
+
+def markdown_table(header: list[str], rows: list[list]) -> MarkdownTable:
     """A GitHub Markdown table; floats keep what the caller formatted."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
+    table = MarkdownTable("\n".join(lines) + "\n")
+    table.header = tuple(str(h) for h in header)
+    table.rows = tuple(tuple(str(c) for c in row) for row in rows)
+    return table
 
 
 def wind_label(level: int | str) -> str:

@@ -5,7 +5,6 @@ Written as ``report.json``, ``report.md``, ``report.html`` and PNG figures, each
 
 from __future__ import annotations
 
-import html
 import io
 import json
 import math
@@ -18,9 +17,12 @@ from common.files import atomic_write_bytes
 from models.report import markdown_table, write_json, write_text
 
 from .diagnosis.joint import JointFit
+from .report_html import render_html
 from .result import Diagnosis
 
-__all__ = ["contact_sheet", "json_safe", "read_report", "verdict", "write_report"]
+__all__ = [
+    "answer", "contact_sheet", "document", "json_safe", "read_report", "verdict", "write_report",
+]
 
 def read_report(path: str | Path, field: str) -> Diagnosis:
     """A diagnosis's ``report.json`` read back, refused in one line unless it is one.
@@ -69,6 +71,54 @@ def _fmt(value, digits: int = 3) -> str:
 
 def _ci(pair) -> str:
     return f"[{_fmt(pair[0])}, {_fmt(pair[1])}]"
+
+
+def _change(name: str, strength) -> str:
+    return f"turn on {name}" if strength is None else f"set {name} to {_fmt(strength)}"
+
+
+def answer(result: Diagnosis) -> str:
+    """The answer in a few sentences: what differs and by how much, what to change, the loop.
+
+    From the joint calibration when it ran, else from the named effect; the evidence follows
+    in :func:`verdict` and the tables.
+    """
+    if not result.location.significant:
+        return ("The simulated and real clips cannot be told apart beyond their noise floor "
+                "with this budget: there is no gap to explain.")  # fmt: skip
+    joint, ranking = result.joint, result.ranking
+    parts = []
+    if joint is not None and joint.shapley:
+        order = sorted(joint.shapley.items(), key=lambda kv: -kv[1])
+        shares = ", ".join(f"{100 * v:.0f} % {joint.factors[n]} ({n})" for n, v in order)
+        rest = f"{100 * joint.unexplained:.0f} % is unexplained"
+        if joint.unexplained >= 0.2:
+            rest += f" (stage {result.residual_stage})"
+        parts.append(f"The gap is {shares}; {rest}.")
+        changes = "; ".join(_change(n, joint.strengths[n]) for n, _ in order)
+        parts.append(f"To close it, change the simulator: {changes}.")
+    elif ranking.explained:
+        top = result.candidates[ranking.top]
+        parts.append(f"The gap is explained by {ranking.top} (stage {top['stage']}), which "
+                     f"closes {100 * top['best_score']:.0f} % of it.")  # fmt: skip
+        parts.append(f"To close it, {_change(ranking.top, top['best_strength'])}.")
+    else:
+        parts.append("No candidate, alone or with others, explains the gap: unexplained "
+                     f"residual at stage {result.residual_stage}.")  # fmt: skip
+    shrink = result.shrink
+    if shrink is None:
+        parts.append("How far it shrinks after retraining is measured by `python -m "
+                     "sim2real.shrink report=<this folder>`.")  # fmt: skip
+    else:
+        before, after = shrink["correlations"]["before"], shrink["correlations"]["after"]
+        parts.append(
+            "Retrained with " + ", ".join(e["name"] for e in shrink["effects"])
+            + ", the model's Spearman ρ with measured stiffness went "
+            f"{_fmt(before['stiffness']['spearman'], 2)} -> "
+            f"{_fmt(after['stiffness']['spearman'], 2)} and with density "
+            f"{_fmt(before['density']['spearman'], 2)} -> {_fmt(after['density']['spearman'], 2)}."
+        )
+    return " ".join(parts)
 
 
 def verdict(result: Diagnosis) -> str:
@@ -532,8 +582,12 @@ def _swap_lines(swaps: dict | None) -> list[str]:
     return lines
 
 
-def _markdown(result: Diagnosis, figures: list[str]) -> str:
-    lines = [f"# Sim-to-real diagnosis: {result.name}", "", verdict(result), ""]
+def document(result: Diagnosis, figures: list[str]) -> list:
+    """The report as lines of Markdown and tables (:class:`models.report.MarkdownTable`)."""
+    lead = [f for f in figures if f == "shares.png"]
+    lines = [f"# Sim-to-real diagnosis: {result.name}", "", answer(result), "",
+             *[f"![{f}]({f})" for f in lead], "", "## Evidence", "", verdict(result),
+             ""]  # fmt: skip
     info = result.inputs
     lines += [
         f"Real set: `{info.real_dir}` ({info.real_videos} videos, {info.real_clips} "
@@ -601,23 +655,12 @@ def _markdown(result: Diagnosis, figures: list[str]) -> str:
         ),
         "",
     ]
-    lines += [f"![{f}]({f})" for f in figures]
-    return "\n".join(lines) + "\n"
+    lines += [f"![{f}]({f})" for f in figures if f not in lead]
+    return lines
 
 
-def _html(markdown: str, result: Diagnosis, figures: list[str]) -> str:
-    """A self-contained page: the verdict, the tables (as preformatted Markdown) and figures."""
-    body = [f"<h1>Sim-to-real diagnosis: {html.escape(result.name)}</h1>",
-            f"<p><b>Verdict.</b> {html.escape(verdict(result))}</p>"]  # fmt: skip
-    body += [f'<p><img src="{f}" style="max-width:100%"></p>' for f in figures]
-    body.append(f"<pre>{html.escape(markdown)}</pre>")
-    return (
-        "<!doctype html><html><head><meta charset='utf-8'><title>sim2real</title>"
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}"
-        "pre{font-size:12px;white-space:pre-wrap}</style></head><body>"
-        + "\n".join(body)
-        + "</body></html>\n"
-    )
+def _markdown(result: Diagnosis, figures: list[str]) -> str:
+    return "\n".join(str(line) for line in document(result, figures)) + "\n"
 
 
 def _png(fig) -> bytes:
@@ -667,7 +710,32 @@ def _figures(result: Diagnosis, out_dir: Path) -> list[str]:
     fig.tight_layout()
     atomic_write_bytes(out_dir / "candidates.png", _png(fig))
     plt.close(fig)
-    return ["rungs.png", "candidates.png"]
+    if result.joint is None or not result.joint.shapley:
+        return ["rungs.png", "candidates.png"]
+    atomic_write_bytes(out_dir / "shares.png", _share_chart(result.joint))
+    return ["shares.png", "rungs.png", "candidates.png"]
+
+
+def _share_chart(joint: JointFit) -> bytes:
+    """Each factor's share of the gap (Shapley value, 95 % interval), then the unexplained."""
+    import matplotlib.pyplot as plt
+
+    order = sorted(joint.shapley.items(), key=lambda kv: -kv[1])
+    names = [f"{n} ({joint.factors[n]})" for n, _ in order] + ["unexplained"]
+    values = np.array([v for _, v in order] + [joint.unexplained]) * 100
+    low = np.array([joint.shapley_interval[n][0] for n, _ in order] + [np.nan]) * 100
+    high = np.array([joint.shapley_interval[n][1] for n, _ in order] + [np.nan]) * 100
+    errors = np.nan_to_num(np.abs(np.stack([values - low, high - values])), nan=0.0)
+    colours = [STAGE_COLOURS[joint.factors[n]] for n, _ in order] + ["#bbbbbb"]
+    fig, ax = plt.subplots(figsize=(9, 0.45 * len(names) + 1.3), dpi=100)
+    ax.barh(names[::-1], values[::-1], color=colours[::-1], xerr=errors[:, ::-1], capsize=3)
+    ax.set_xlim(0, 100)
+    ax.set_xlabel("share of the gap [%] (Shapley value at the calibrated simulator)")
+    ax.set_title(f"The calibrated simulator closes {100 * joint.closure:.0f} % of the gap")
+    fig.tight_layout()
+    data = _png(fig)
+    plt.close(fig)
+    return data
 
 
 def contact_sheet(path: Path, rows: dict[str, np.ndarray], box, frames: int = 5) -> None:
@@ -702,4 +770,5 @@ def write_report(result: Diagnosis, out_dir: Path, extra_figures: tuple[str, ...
     markdown = _markdown(result, figures)
     write_json(out_dir / "report.json", result.to_json())
     write_text(out_dir / "report.md", markdown)
-    write_text(out_dir / "report.html", _html(markdown, result, figures))
+    write_text(out_dir / "report.html",
+               render_html(document(result, figures), f"Sim-to-real diagnosis: {result.name}"))

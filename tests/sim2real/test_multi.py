@@ -38,10 +38,10 @@ def test_stages_are_spread_over_many_sets_and_twins_withhold_nothing():
 
 def _joint(shapley: dict[str, float], stages: dict[str, str]) -> JointFit:
     return JointFit(
-        factors=stages, strengths={n: 1.0 for n in shapley}, closure=sum(shapley.values()),
+        factors=stages, strengths=dict.fromkeys(shapley, 1.0), closure=sum(shapley.values()),
         closure_interval=(0.0, 1.0), reset=dict(shapley),
-        reset_interval={n: (0.0, 1.0) for n in shapley}, shapley=shapley,
-        shapley_interval={n: (0.0, 1.0) for n in shapley}, path=[], sets=9,
+        reset_interval=dict.fromkeys(shapley, (0.0, 1.0)), shapley=shapley,
+        shapley_interval=dict.fromkeys(shapley, (0.0, 1.0)), path=[], sets=9,
     )  # fmt: skip
 
 

@@ -211,6 +211,7 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
         assert sum(joint.shapley.values()) == pytest.approx(joint.closure, abs=1e-9)
         assert joint.closure >= noise["best_score"] - 0.05
         assert "Every factor calibrated together" in (out / "report.md").read_text()
+        assert (out / "shares.png").stat().st_size > 0
     residual = result.residual  # the gap tests between R and the top's best set
     assert residual["candidate"] == "visual.sensor_noise"
     assert residual["strength"] in noise["strengths"]
@@ -228,8 +229,12 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert saved.ranking.top == "visual.sensor_noise"
     again = decide_again(saved)  # the stored closures, decided again by the same rules
     assert again.replayed and dataclasses.replace(again, replayed=None) == saved.ranking
-    assert "visual.sensor_noise" in (out / "report.md").read_text().split("\n")[2]
-    assert "With visual.sensor_noise added at" in (out / "report.md").read_text().split("\n")[2]
+    lines = (out / "report.md").read_text().split("\n")
+    assert "visual.sensor_noise" in lines[2]  # the answer leads
+    assert "To close it" in lines[2]
+    assert "With visual.sensor_noise added at" in lines[lines.index("## Evidence") + 2]
+    page = (out / "report.html").read_text()  # real tables, not Markdown source
+    assert "<table>" in page and "|---|" not in page and 'class="answer"' in page
 
     # counterfactual (b): the sealed set's sensor noise is measured and emulated on S
     camera = result.counterfactuals["camera"]

@@ -1,0 +1,29 @@
+"""The report's web page: real tables, headings, figures and escaped text."""
+
+from models.report import markdown_table
+from sim2real.report_html import blocks, render_html
+
+
+def test_lines_and_tables_become_blocks_and_the_first_paragraph_leads():
+    items = [
+        "# Title", "", "The gap is 60 % `physics` (air damping);", "**4 %** is left.", "",
+        "![shares.png](shares.png)", "## Evidence", "- one item", "  continued", "- two",
+        markdown_table(["factor", "share"], [["a<b", "60 %"], ["`c`", "4 %"]]),
+    ]  # fmt: skip
+    got = blocks(items)
+    assert [b["kind"] for b in got] == ["h1", "p", "figure", "h2", "ul", "table"]
+    assert got[1]["lead"] and ("code", "physics") in got[1]["spans"]
+    assert ("strong", "4 %") in got[1]["spans"]
+    assert got[4]["items"][0] == [("text", "one item continued")]
+    assert got[5]["header"] == [[("text", "factor")], [("text", "share")]]
+    assert got[5]["rows"][1][0] == [("code", "c")]
+
+
+def test_the_page_escapes_text_and_shows_tables_as_html():
+    table = markdown_table(["factor", "share"], [["<script>x</script>", "60 %"]])
+    page = render_html(["# Report <1>", "", "Answer & more.", table], "Report <1>")
+    assert "<script>" not in page and "&lt;script&gt;" in page
+    assert "<title>Report &lt;1&gt;</title>" in page
+    assert "<th>factor</th>" in page and "<td>60 %</td>" in page
+    assert '<p class="answer">Answer &amp; more.</p>' in page
+    assert str(table).startswith("| factor | share |")  # the Markdown text is unchanged
