@@ -444,7 +444,10 @@ def _shrink_section(shrink: dict | None) -> list[str]:
     ]  # fmt: skip
     return [
         f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
-        f"fine-tuned for {shrink['epochs']} epochs from the run's weights.",
+        f"fine-tuned for {shrink['epochs']} epochs from the run's weights."
+        + ("" if shrink.get("closure_predicted_total") is None else
+           f" The calibrated simulator was predicted to close "
+           f"{100 * shrink['closure_predicted_total']:.0f} % of the gap."),
         "",
         *_predictivity_lines(shrink.get("predictivity")),
         markdown_table(["measured", "r", "before", "95 % CI", "after", "95 % CI"], rows),

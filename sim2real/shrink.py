@@ -1,8 +1,9 @@
 """How far the gap shrinks: retrain with the identified effect, measure before and after.
 
 ``python -m sim2real.shrink report=outputs/sim2real/<name> [epochs=8] [preset=small]``
-reads a diagnosis (``report.json``), regenerates the training data of its run with the top
-effect(s) at the fitted strength (``datasets.generation``, same scene, seeds and settings;
+reads a diagnosis (``report.json``), regenerates the training data of its run with every
+factor of the calibrated simulator S* (or, without a joint fit, the named effect) at its
+fitted strength (``datasets.generation``, same scene, seeds and settings;
 ``effects=name=strength,...`` overrides the choice), fine-tunes the run's model on it from its
 weights (``models.training.train`` with the run's own config, ``init_from`` = its checkpoint),
 and reports on the real set: Pearson and Spearman of the material score with measured stiffness
@@ -38,13 +39,19 @@ __all__ = ["chosen_effects", "shrink"]
 
 
 def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple[str, object]]:
-    """(candidate, strength) pairs to add: ``override`` ("a=1,b=2") or the explained top."""
+    """(candidate, strength) pairs to add to the training data.
+
+    ``override`` ("a=1,b=2"), else every factor of the joint calibration that matters (the
+    calibrated simulator S*), else the explained top.
+    """
     if override:
         pairs = []
         for item in override.split(","):
             name, _, value = item.partition("=")
             pairs.append((name.strip(), None if value == "" else _number(value)))
         return pairs
+    if result.joint is not None and result.joint.strengths:
+        return list(result.joint.strengths.items())
     ranking = result.ranking
     if not ranking.explained:
         raise ValueError(
@@ -191,7 +198,7 @@ def shrink(
         device=inputs.device, seed=seed,
     )  # fmt: skip
     top = chosen[0][0]
-    predicted = result.candidates.get(top)
+    predicted = result.candidates.get(top) if len(chosen) == 1 else None
     rungs = {}
     for name, gap in gaps_after.items():
         before_auc = result.rungs[name]["corrected_auc"]
@@ -212,6 +219,8 @@ def shrink(
         "checkpoint_after": str(after_ckpt),
         "correlations": {"before": before, "after": after}, "rungs": rungs,
         "predictivity": srcc,
+        "closure_predicted_total": (result.joint.closure if result.joint is not None
+                                    and len(chosen) > 1 else None),
     }  # fmt: skip
     result = dataclasses.replace(result, shrink=json_safe(section))
     write_report(result, report_dir, extra_figures=("clips.png",))

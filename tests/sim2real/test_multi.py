@@ -53,7 +53,7 @@ def _diagnosis(joint=None, top="visual.sensor_noise", explained=False):
     result = as_diagnosis({
         "ranking": {"ranking": [top], "top": top, "explained": explained},
         "scored_rungs": ["pixel"],
-        "candidates": {top: {"stage": STAGES[top], "best_score": 0.3,
+        "candidates": {top: {"stage": STAGES[top], "best_score": 0.3, "best_strength": 4.0,
                              "strength_interval": [1.0, 2.0]}},
     })  # fmt: skip
     return dataclasses.replace(result, joint=joint)
@@ -96,3 +96,15 @@ def test_without_a_joint_fit_the_named_effect_counts_and_twins_score_false_attri
     summary = summarise([score_set(named, twin), score_set(_diagnosis(None), twin)])
     assert summary["twin_false_attribution"] == 0.5 and summary["twin_n"] == 2
     assert summary["open_n"] == 0
+
+
+def test_the_closed_loop_retrains_with_every_factor_of_the_calibrated_simulator():
+    from sim2real.shrink import chosen_effects
+
+    joint = _joint({"physics.air_damping": 0.5, "visual.sensor_noise": 0.2}, STAGES)
+    assert chosen_effects(_diagnosis(joint)) == [("physics.air_damping", 1.0),
+                                                 ("visual.sensor_noise", 1.0)]  # fmt: skip
+    assert chosen_effects(_diagnosis(None, explained=True)) == [("visual.sensor_noise", 4.0)]
+    with pytest.raises(ValueError, match="named no effect"):
+        chosen_effects(_diagnosis(None))
+    assert chosen_effects(_diagnosis(joint), "scene.size=0.5") == [("scene.size", 0.5)]
