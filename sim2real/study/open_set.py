@@ -30,6 +30,8 @@ import math
 import cv2
 import numpy as np
 
+from .image_twins import apply_image_twins, without_twinned
+
 __all__ = [
     "FLICKER_LIGHT_HZ",
     "OPEN_SET_EFFECTS",
@@ -148,13 +150,15 @@ def barrel_image(image: np.ndarray, strength: float, interpolation: int = cv2.IN
 
 
 def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_seed: list,
-                        effects: list[dict]) -> np.ndarray:  # fmt: skip
+                        effects: list[dict], image_twins: bool = False) -> np.ndarray:  # fmt: skip
     """Frames ``[start, stop)`` of instance ``b`` of ``seq`` with out-of-library image effects.
 
     Rendered as ``spec`` renders them (:func:`datasets.generation.render_frames`; ``rng_seed``
     seeds the renderer's random draws), with the sealed answer's (``effects``: its entries)
     out-of-library image effects added (with none, the plain render): a barrel lens moves the
-    cloth and the arm before rendering, the others act on the rendered frames.
+    cloth and the arm before rendering, the others act on the rendered frames. With
+    ``image_twins`` the spec's image effects that have a second implementation
+    (:mod:`.image_twins`) are applied by it instead of the renderer.
     """
     from datasets.generation import render_frames, sim_look
 
@@ -176,10 +180,15 @@ def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_s
             capsules=capsules,
         )  # fmt: skip
         background = barrel_image(background, strength)
+    rendered = spec
+    if image_twins:
+        rendered = dataclasses.replace(spec, visual=without_twinned(spec.visual))
     frames, _ = render_frames(
-        spec, video, 0, plan, start, stop, rng=np.random.default_rng(rng_seed),
+        rendered, video, 0, plan, start, stop, rng=np.random.default_rng(rng_seed),
         capsules=video.capsules, look=(texture, background),
     )  # fmt: skip
+    if image_twins:
+        frames = apply_image_twins(frames, spec.visual, np.random.default_rng([*rng_seed, 3]))
     if "exposure_flicker" in strengths:
         phase = np.random.default_rng([*rng_seed, 1]).uniform(0.0, 2 * np.pi)
         frames = apply_exposure_flicker(

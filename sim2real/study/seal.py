@@ -47,6 +47,8 @@ SEAL_KINDS = ("single", "pair", "open", "multi", "twin")
 _DRAWN_KINDS = ("single", "pair", "open")
 """Kinds a seed draws when none is given (``multi`` and ``twin`` are asked for by name)."""
 _KIND_WEIGHTS = (0.5, 0.25, 0.25)
+IMAGE_EFFECT_SOURCES = ("library", "twins")
+"""Who applies a sealed set's library image effects (:func:`seal_set`'s ``image_effects``)."""
 MULTI_EFFECTS = (3, 6)
 """A ``multi`` set's count of simultaneous library effects, drawn uniformly (inclusive)."""
 _SEAL_STREAM = 7
@@ -196,6 +198,7 @@ def seal_set(
     answer_path: str | Path | None = None,
     overwrite: bool = False,
     density_range: tuple[float, float] = (0.8, 1.25),
+    image_effects: str | None = None,
 ) -> tuple[Path, str]:
     """Write sealed set ``seed`` into ``out``; returns (answer file, its sha256).
 
@@ -213,6 +216,10 @@ def seal_set(
         overwrite: Replace an existing ``out``.
         density_range: Areal density factors on the basis fabric's, drawn uniformly
             (``(1, 1)``: every video at the training data's density).
+        image_effects: Who applies the library's image effects: ``library`` (the renderer,
+            as a candidate set does) or ``twins`` (second implementations written apart,
+            :mod:`.image_twins`); default ``twins`` for ``multi`` and ``twin`` sets, else
+            ``library``.
     """
     from simulator.cloth.rollout import simulate
 
@@ -226,6 +233,11 @@ def seal_set(
     answer_path.parent.mkdir(parents=True, exist_ok=True)
     library = candidate_library(base)
     answer = answer or draw_answer(seed, library, kind)
+    if image_effects is None:
+        image_effects = "twins" if answer["kind"] in ("multi", "twin") else "library"
+    if image_effects not in IMAGE_EFFECT_SOURCES:
+        raise ValueError(f"image_effects must be one of {IMAGE_EFFECT_SOURCES}, "
+                         f"got {image_effects!r}")  # fmt: skip
     rng = np.random.default_rng([seed, _SEAL_STREAM, 1])
     spec, nuisance = _sealed_spec(base, answer, rng)
     p = np.exp(rng.uniform(*np.log([min(STRETCH_MULTIPLIERS), max(STRETCH_MULTIPLIERS)]), videos))
@@ -270,6 +282,7 @@ def seal_set(
             frames = render_sealed_video(
                 spec, seq, b, plan, spec.lead_in_frames, frame_count,
                 rng_seed=[sim_seeds[i], _SEAL_STREAM, 2], effects=answer["effects"],
+                image_twins=image_effects == "twins",
             )  # fmt: skip
             _write_frames(partial / f"v{i:03d}", frames)
             density = basis.density * density_factor[i]
@@ -279,7 +292,7 @@ def seal_set(
         shutil.rmtree(out)
     partial.rename(out)
     answer = {**answer, "nuisance": nuisance, "videos": videos, "base_spec_key": base.key(),
-              "sealed_spec_key": spec.key()}  # fmt: skip
+              "sealed_spec_key": spec.key(), "image_effects": image_effects}  # fmt: skip
     text = json.dumps(answer, indent=2, sort_keys=True) + "\n"
     answer_path.write_text(text)
     return answer_path, hashlib.sha256(text.encode()).hexdigest()
@@ -324,6 +337,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--kind", choices=SEAL_KINDS, help="default: drawn from the seed")
     parser.add_argument("--answer", help="answer file (default: <out>.answer.json)")
     parser.add_argument("--overwrite", action="store_true")
+    parser.add_argument("--image-effects", choices=IMAGE_EFFECT_SOURCES,
+                        help="who applies the library's image effects (default: twins for "
+                        "multi and twin sets, else library)")  # fmt: skip
     parser.add_argument("--density-range", type=float, nargs=2, default=(0.8, 1.25),
                         metavar=("LOW", "HIGH"), help="areal density factors drawn per video")
     args = parser.parse_args(argv)
@@ -333,7 +349,7 @@ def main(argv: list[str] | None = None) -> None:
             args.out, base=_base_spec(args.data_dir, args.level), seed=args.seed,
             videos=args.videos, clips_per_video=args.clips_per_video, kind=args.kind,
             answer_path=args.answer, overwrite=args.overwrite,
-            density_range=tuple(args.density_range),
+            density_range=tuple(args.density_range), image_effects=args.image_effects,
         )  # fmt: skip
     except ValueError as err:  # the sealing's own checks name the field
         raise InputError(str(err)) from None

@@ -193,3 +193,22 @@ def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_p
     assert written["plain"] == written["rolling"]
     first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0001.png")) for n in written]
     assert np.abs(first[0].astype(int) - first[1]).mean() > 0.1
+
+
+def test_a_sealed_video_can_take_its_image_effects_from_the_twins(cloth):
+    spec, recorded, plan, stop = cloth
+    library = candidate_library(spec)
+    noisy = library["visual.sensor_noise"].apply(spec, 6.0)
+
+    def render(spec, twins):
+        return render_sealed_video(spec, recorded, 0, plan, spec.lead_in_frames, stop,
+                                   rng_seed=[5], effects=[], image_twins=twins)  # fmt: skip
+
+    plain = render(spec, False).astype(float)
+    by_renderer = render(noisy, False).astype(float)
+    by_twins = render(noisy, True).astype(float)
+    assert not np.array_equal(by_renderer, by_twins)
+    # the same noise level from either implementation (read 6 and shot noise), not the same draw
+    level = np.std(by_renderer - plain)
+    assert np.std(by_twins - plain) == pytest.approx(level, rel=0.1) and level > 5
+    assert np.array_equal(render(spec, True), render(spec, False))  # nothing to twin: identical
