@@ -37,11 +37,11 @@ from .diagnosis import (
     probe_transfer,
     rank_candidates,
     rung_gaps,
-    score_reference,
     shapley_values,
     stage_of_residual,
 )
 from .diagnosis.joint import Assignment, Factor, closure_values, fit_jointly
+from .diagnosis.reference import compare_domains
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
 from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
@@ -403,15 +403,12 @@ def run_diagnosis(
     sets, cached = run_jobs(jobs, context, n_jobs, progress, timing)
 
     tick = time.perf_counter()
-    settings = {"n_perm": budget.n_perm, "n_boot": budget.n_boot, "n_floor": budget.n_floor,
-                "seed": seed}  # fmt: skip
-    # Whether there is a gap, and where: R against S and S' pooled (twice the simulations;
-    # on the validation's sealed sets this found the gap of weak effects that S alone
-    # missed). Candidates are scored against S's own gaps: every S_e has S's size and seeds.
-    detection = rung_gaps(LadderFeatures.pooled(nominal, sets["S'"]), real_features, **settings)
-    location = localise(detection, alpha=alpha)
-    gaps = rung_gaps(nominal, real_features, **settings)
-    rungs, before = score_reference(location, gaps, nominal, real_features)
+    reference = compare_domains(
+        nominal, sets["S'"], real_features, n_perm=budget.n_perm, n_boot=budget.n_boot,
+        n_floor=budget.n_floor, seed=seed, alpha=alpha,
+    )  # fmt: skip
+    detection, location, gaps = reference.detection, reference.location, reference.gaps
+    rungs, before = reference.rungs, reference.before
     timing["fit"] = time.perf_counter() - tick
 
     def score(plan):
@@ -493,8 +490,7 @@ def run_diagnosis(
     tick = time.perf_counter()
     joint = _joint_fit(
         plan, results, null, spec, library, budget, build=build, sets=sets, nominal=nominal,
-        value_of=lambda built: closure_values(built, nominal, real_features, gaps, rungs, before,
-                                              n_boot=budget.n_boot, seed=seed),
+        value_of=lambda built: closure_values(built, reference, n_boot=budget.n_boot, seed=seed),
     )  # fmt: skip
     timing["joint"] = time.perf_counter() - tick
     swaps, built, built_cached = _stage_swaps(

@@ -20,12 +20,13 @@ import numpy as np
 from datasets.spec import DatasetSpec
 
 from .candidates import Candidate, candidate_library
-from .diagnosis import reference_scores, rung_gaps
 from .diagnosis.joint import Assignment, Value, closure_values
-from .diagnosis.scoring import ReferenceScores, candidate_result
+from .diagnosis.reference import Reference, compare_domains
+from .diagnosis.scoring import candidate_result
 from .domains import real_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import (
+    NULL_SEED_OFFSET,
     Budget,
     SetContext,
     SetJob,
@@ -35,7 +36,6 @@ from .pipeline import (
     run_jobs,
 )
 from .result import Diagnosis, DiagnosisInputs
-from .stats import Gap
 
 __all__ = ["Reopened", "reopen", "report_context", "report_real_features"]
 
@@ -48,12 +48,8 @@ class Reopened:
     """The nominal set's spec (S)."""
     library: dict[str, Candidate]
     context: SetContext
-    nominal: LadderFeatures
-    real: LadderFeatures
-    gaps: dict[str, Gap]
-    rungs: list[str]
-    """The scored rungs."""
-    before: ReferenceScores
+    reference: Reference
+    """S, S' and R compared, as the diagnosis compared them."""
     budget: Budget
     seed: int
 
@@ -68,30 +64,30 @@ class Reopened:
         jobs = self.jobs(batch)
         built, _ = run_jobs(jobs, self.context, n_jobs, progress, {})
         labels = iter(j.label for j in jobs)
-        return [built[next(labels)] if a else self.nominal for a in batch]
+        return [built[next(labels)] if a else self.reference.nominal for a in batch]
 
     def values(
         self, batch: Sequence[Assignment], *, n_jobs: int = 1, progress: bool = False
     ) -> list[Value]:
         """Each assignment's closure of the gap with its bootstrap replicates."""
         sets = self.features(batch, n_jobs=n_jobs, progress=progress)
-        return closure_values(sets, self.nominal, self.real, self.gaps, self.rungs, self.before,
-                              n_boot=self.budget.n_boot, seed=self.seed)  # fmt: skip
+        return closure_values(sets, self.reference, n_boot=self.budget.n_boot, seed=self.seed)
 
     def classifier(self, batch: Sequence[Assignment], *, n_jobs: int = 1) -> list[dict]:
         """Per assignment and scored rung: the domain classifier's AUC and divergence to R."""
         from .diagnosis.scoring import _auc, _divergence
 
         sets = self.features(batch, n_jobs=n_jobs)
-        scored = candidate_result("any", "any", (None,) * len(sets), sets, self.nominal,
-                                  self.real, self.gaps, self.rungs, self.before)  # fmt: skip
+        ref = self.reference
+        scored = candidate_result("any", "any", (None,) * len(sets), sets, ref.nominal, ref.real,
+                                  ref.gaps, ref.rungs, ref.before)  # fmt: skip
         return [
             {
                 rung: {
                     "auc": _auc(scored.scores_oof[rung][i], len(sets[i])),
                     "divergence": _divergence(scored.scores_oof[rung][i], len(sets[i])),
                 }
-                for rung in self.rungs
+                for rung in ref.rungs
             }
             for i in range(len(sets))
         ]
@@ -131,8 +127,6 @@ def reopen(diagnosis: Diagnosis) -> Reopened:
     """
     info = diagnosis.inputs
     spec = DatasetSpec.from_json(info.nominal_spec)
-    budget = Budget(**{k: tuple(v) if isinstance(v, list) else v
-                       for k, v in info.budget_settings.items()})  # fmt: skip
     context = report_context(info)
     path = nominal_path(spec, context)
     if not path.is_file():
@@ -141,13 +135,17 @@ def reopen(diagnosis: Diagnosis) -> Reopened:
             "rerun the diagnosis"
         )
     nominal = LadderFeatures.load(path)
-    real = report_real_features(info)
-    gaps = rung_gaps(nominal, real, n_perm=budget.n_perm, n_boot=budget.n_boot,
-                     n_floor=budget.n_floor, seed=info.seed)  # fmt: skip
-    rungs = list(diagnosis.scored_rungs)
-    before = reference_scores(nominal, real, rungs)
-    if not np.allclose([before.auc[r] for r in rungs],
-                       [diagnosis.reference_auc[r] for r in rungs], atol=1e-9):  # fmt: skip
+    null_job = SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))
+    null = run_jobs([null_job], context, 1, False, {})[0]["S'"]
+    budget = Budget(**{k: tuple(v) if isinstance(v, list) else v
+                       for k, v in info.budget_settings.items()})  # fmt: skip
+    reference = compare_domains(
+        nominal, null, report_real_features(info), n_perm=budget.n_perm, n_boot=budget.n_boot,
+        n_floor=budget.n_floor, seed=info.seed, alpha=info.alpha,
+    )  # fmt: skip
+    if reference.rungs != list(diagnosis.scored_rungs) or not np.allclose(
+        [reference.before.auc[r] for r in reference.rungs],
+        [diagnosis.reference_auc[r] for r in reference.rungs], atol=1e-9,
+    ):  # fmt: skip
         raise ValueError("cache_dir: the cached features no longer match the stored diagnosis")
-    return Reopened(spec, candidate_library(spec), context, nominal, real, gaps, rungs, before,
-                    budget, info.seed)  # fmt: skip
+    return Reopened(spec, candidate_library(spec), context, reference, budget, info.seed)

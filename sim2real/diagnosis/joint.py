@@ -26,9 +26,10 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from ..ladder import LadderFeatures
-from ..stats import CI_LEVEL, Gap, bootstrap_draws, classifier_divergence, weighted_auc
+from ..stats import CI_LEVEL, bootstrap_draws, classifier_divergence, weighted_auc
 from .coalitions import shapley_values
-from .scoring import ReferenceScores, _auc_floor, candidate_result
+from .reference import Reference
+from .scoring import _auc_floor, candidate_result
 
 __all__ = [
     "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Value",
@@ -101,15 +102,7 @@ Evaluate = Callable[[Sequence[Assignment]], list[Value]]
 
 
 def closure_values(
-    sets: Sequence[LadderFeatures],
-    sim: LadderFeatures,
-    real: LadderFeatures,
-    gaps: dict[str, Gap],
-    rungs: list[str],
-    before: ReferenceScores,
-    *,
-    n_boot: int,
-    seed: int,
+    sets: Sequence[LadderFeatures], reference: Reference, *, n_boot: int, seed: int
 ) -> list[Value]:
     """The closure of each set (as :func:`candidate_result` scores it) with its replicates.
 
@@ -119,6 +112,8 @@ def closure_values(
     above its floor elsewhere (classifiers held fixed). S itself closes exactly 0, in every
     replicate.
     """
+    sim, real, before = reference.nominal, reference.real, reference.before
+    gaps, rungs = reference.gaps, reference.rungs
     for features in sets:
         if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
             raise ValueError("closure_values: every set must hold S's simulations, in S's order")

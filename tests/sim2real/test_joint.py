@@ -14,7 +14,6 @@ import math
 import numpy as np
 import pytest
 
-from sim2real.diagnosis import localise, rung_gaps, score_reference
 from sim2real.diagnosis.joint import (
     Factor,
     JointFit,
@@ -24,6 +23,7 @@ from sim2real.diagnosis.joint import (
     closure_values,
     fit_jointly,
 )
+from sim2real.diagnosis.reference import compare_domains
 from sim2real.ladder import LadderFeatures
 
 SIMS, CLIPS, DIMS = 24, 3, 6
@@ -51,15 +51,15 @@ def _world(seed: int, factors: dict) -> LadderFeatures:
 
 @pytest.fixture(scope="module")
 def scene():
-    sim, real = _world(0, {}), _world(1, PLANTED)
-    gaps = rung_gaps(sim, real, n_perm=50, n_boot=50, n_floor=3, seed=0)
-    location = localise(gaps, alpha=0.05)
-    rungs, before = score_reference(location, gaps, sim, real)
-    assert rungs == ["pixel"] and before.saturated("pixel")  # the AUC is stuck at 1
+    sim, null, real = _world(0, {}), _world(2, {}), _world(1, PLANTED)
+    reference = compare_domains(sim, null, real, n_perm=50, n_boot=50, n_floor=3, seed=0,
+                                alpha=0.05)  # fmt: skip
+    assert reference.rungs == ["pixel"]
+    assert reference.before.saturated("pixel")  # the AUC is stuck at 1
 
     def evaluate(batch):
         sets = [_world(0, dict(a)) for a in batch]
-        return closure_values(sets, sim, real, gaps, rungs, before, n_boot=60, seed=0)
+        return closure_values(sets, reference, n_boot=60, seed=0)
 
     return sim, evaluate
 
