@@ -28,7 +28,7 @@ COMMANDS = [
     "benchmarks.thesis.feature_probe", "benchmarks.thesis.geometry_oracle", "datasets.preview",
     "benchmarks.thesis.table72",
     "sim2real.study.power", "sim2real.study.seal",
-    "sim2real.study.validate",
+    "sim2real.study.validate", "sim2real.study.independent",
     "benchmarks.thesis.pso_benchmark", "simulator.export",
     "benchmarks.thesis.paper_table1", "benchmarks.thesis.fig73", "benchmarks.thesis.table71",
     "benchmarks.thesis.tissue_tables", "benchmarks.thesis.garment_tables",

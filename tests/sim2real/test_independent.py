@@ -1,0 +1,223 @@
+"""Independent-engine footage (MuJoCo flex cloth, MuJoCo's renderer): the layout the real-footage
+reader expects, labels, the physics, determinism and one-line refusals.
+
+The footage is written by the command in a child process: MuJoCo picks its OpenGL backend when
+it is first imported, and another test may already have imported it without EGL here.
+"""
+
+import csv
+import itertools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim2real.study import independent
+from tests.conftest import subprocess_env
+
+ROOT = Path(__file__).resolve().parents[2]
+COLUMNS = ["video", "stiffness", "density", "wind", "fps", "fabric", "stretch_stiffness",
+           "bend_stiffness"]  # fmt: skip
+SMALL = ["--fabrics", "2", "--winds", "2", "--size", "32", "--frames", "10", "--seed", "3",
+         "--no-progress"]  # fmt: skip
+
+
+def _command(*args, timeout=300):
+    return subprocess.run(
+        [sys.executable, "-m", "sim2real.study.independent", *args], cwd=ROOT,
+        env=subprocess_env(), capture_output=True, text=True, timeout=timeout,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def renders():
+    """Skip (naming why) unless MuJoCo imports and renders offscreen in a fresh process."""
+    probe = subprocess.run(
+        [sys.executable, "-c", "from sim2real.study.independent import render_available as r; "
+         "print(r() or 'ok')"],
+        cwd=ROOT, env=subprocess_env(), capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    reason = probe.stdout.strip().splitlines()[-1] if probe.stdout.strip() else probe.stderr
+    if probe.returncode != 0 or reason != "ok":
+        pytest.skip(f"MuJoCo offscreen (EGL) rendering unavailable: {reason.strip()[-300:]}")
+
+
+@pytest.fixture(scope="module")
+def footage(renders, tmp_path_factory):
+    out = tmp_path_factory.mktemp("independent") / "set"
+    done = _command("--out", str(out), "--codec", "png", *SMALL)
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}  # fmt: skip
+
+
+@pytest.mark.render
+def test_the_folder_reads_as_real_footage(footage):
+    from datasets.real_video import RealVideoDataset
+    from sim2real.domains import real_clips
+
+    dataset = RealVideoDataset(footage, size=32, clip_len=10, clip_stride=10, target_fps=15)
+    assert [v.name for v in dataset.videos] == ["v000", "v001", "v002", "v003"]
+    assert dataset.skipped == () and len(dataset) == 4
+    assert dataset.group_column == "fabric"  # the winds of one fabric are one group
+    assert [v.group for v in dataset.videos] == ["f00", "f00", "f01", "f01"]
+    sample = dataset[0]
+    assert tuple(sample["video"].shape) == (10, 3, 32, 32)
+    assert sample["wind"] == "W1" and sample["stiffness"] > 0 and sample["density"] > 0
+    assert float(sample["video"].std()) > 0.01  # not a blank frame
+    clips = real_clips(footage, size=32, clip_len=10, clip_stride=10, fps=15.0,
+                       max_clips_per_video=3)  # fmt: skip
+    assert clips.frames.shape == (4, 10, 32, 32, 3) and clips.group_count == 4
+    extra = RealVideoDataset(footage, size=32, columns=("stretch_stiffness", "bend_stiffness"))
+    assert extra[0]["bend_stiffness"] > 0
+
+
+@pytest.mark.render
+def test_labels_have_the_columns_and_positive_values(footage):
+    with open(footage / "labels.csv", newline="") as handle:
+        reader = csv.DictReader(handle)
+        rows = list(reader)
+    assert reader.fieldnames == COLUMNS
+    assert [r["wind"] for r in rows] == ["W1", "W3", "W1", "W3"]  # --winds 2: W1 and W3
+    for row in rows:
+        for column in ("stiffness", "density", "fps", "stretch_stiffness", "bend_stiffness"):
+            assert float(row[column]) > 0, (row["video"], column)
+    ranges = independent.measured_ranges()
+    basis = ranges["basis_bend"][0]
+    for row in rows:  # stiffness = the bend multiplier on the basis fabric, as the sealed sets'
+        assert float(row["stiffness"]) == pytest.approx(float(row["bend_stiffness"]) / basis,
+                                                        rel=1e-3)  # fmt: skip
+        for name in ("stretch_stiffness", "bend_stiffness", "density"):
+            low, high = ranges[name]
+            assert low * 0.999 <= float(row[name]) <= high * 1.001, name
+    engine = json.loads((footage.parent / "set.engine.json").read_text())
+    for topic in ("wind_model", "wind", "material_law", "pinning", "mass_distribution",
+                  "texture", "backdrop", "codec", "frame_rate"):  # fmt: skip
+        assert set(engine["differences"][topic]) == {"ours", "here"}, topic
+    assert engine["codec"]["used"] == "png" and engine["frame_rate"] == 15.0
+    truth = engine["videos"]
+    assert [t["video"] for t in truth] == [r["video"] for r in rows]
+    assert [t["bend_stiffness_nm"] for t in truth] == [float(r["bend_stiffness"]) for r in rows]
+    assert all(len(list((footage / r["video"]).glob("*.png"))) == 10 for r in rows)
+
+
+def _motion(pos: np.ndarray) -> dict[str, float]:
+    """Mean vertex speed per frame, non-rigid motion between frames, out-of-plane RMS [m]."""
+    nonrigid = []
+    for a, b in itertools.pairwise(pos):
+        a, b = a - a.mean(axis=0), b - b.mean(axis=0)
+        u, _, vt = np.linalg.svd(a.T @ b)
+        rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+        nonrigid.append(np.sqrt(((a @ rotation - b) ** 2).sum(axis=1).mean()))
+    return {
+        "speed": float(np.linalg.norm(np.diff(pos, axis=0), axis=-1).mean()),
+        "nonrigid": float(np.mean(nonrigid)),
+        "out_of_plane": independent.out_of_plane_rms(pos),
+    }
+
+
+def test_a_stiffer_fabric_moves_less_under_the_same_wind():
+    try:
+        independent.import_mujoco(render=False)
+    except (ImportError, OSError, AttributeError) as error:
+        pytest.skip(f"cannot import mujoco (a dev dependency): {error!r}")
+    ranges = independent.measured_ranges()
+    density = float(np.sqrt(np.prod(ranges["density"])))
+    soft = independent.EngineFabric(0, ranges["stretch_stiffness"][0],
+                                    ranges["bend_stiffness"][0], density, 1.0)  # fmt: skip
+    stiff = independent.EngineFabric(0, ranges["stretch_stiffness"][1],
+                                     ranges["bend_stiffness"][1], density, 1.0)  # fmt: skip
+    # the same index, seed and level: the same gusts, waviness and fan yaw
+    motion = {
+        name: _motion(independent.simulate_positions(fabric, 2, seed=0, frames=20))
+        for name, fabric in (("soft", soft), ("stiff", stiff))
+    }
+    assert motion["soft"]["speed"] > 0.003  # W3 moves the cloth (m per frame)
+    assert motion["stiff"]["speed"] < motion["soft"]["speed"], motion
+    assert motion["stiff"]["nonrigid"] < 0.95 * motion["soft"]["nonrigid"], motion
+    assert motion["stiff"]["out_of_plane"] < 0.9 * motion["soft"]["out_of_plane"], motion
+
+
+def test_the_gusts_are_smooth_and_keep_their_mean():
+    scene = independent.EngineScene()
+    times = np.arange(20_000) * scene.max_dt
+    wind, drawn = independent.wind_history(scene, 1, np.random.default_rng(0), times)
+    speed = np.linalg.norm(wind[times > 1.0], axis=1)
+    assert drawn["mean_speed_m_s"] == 1.5 and abs(drawn["fan_yaw_deg"]) <= scene.fan_yaw_deg
+    assert speed.mean() == pytest.approx(1.5, rel=0.05)
+    assert speed.std() / speed.mean() == pytest.approx(scene.gust_intensity, rel=0.35)
+    # smooth: a physics step changes the speed by a few % of its spread (white noise: 141 %)
+    assert np.std(np.diff(speed)) < 0.05 * speed.std()
+    assert np.all(wind[times == 0] == 0)  # the fan starts at rest
+
+
+@pytest.mark.render
+def test_the_same_seed_gives_the_same_output(footage, tmp_path):
+    again = tmp_path / "again"
+    done = _command("--out", str(again), "--codec", "png", *SMALL)
+    assert done.returncode == 0, done.stderr
+    assert _files(again) == _files(footage)
+    ours = json.loads((footage.parent / "set.engine.json").read_text())["videos"]
+    theirs = json.loads((tmp_path / "again.engine.json").read_text())["videos"]
+    assert [v["sha256"] for v in ours] == [v["sha256"] for v in theirs]
+
+
+@pytest.mark.render
+def test_a_video_codec_is_used_and_recorded(renders, tmp_path):
+    from datasets.real_video import RealVideoDataset
+
+    out = tmp_path / "videos"
+    done = _command("--out", str(out), "--fabrics", "1", "--winds", "1", "--size", "32",
+                    "--frames", "10", "--no-progress")  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    codec = json.loads((tmp_path / "videos.engine.json").read_text())["codec"]
+    assert codec["requested"] == "h264" and codec["used"] in ("avc1", "mp4v", "MJPG")
+    assert codec["used"] in done.stdout
+    if codec["used"] != "avc1":
+        assert "not available" in codec["note"]
+    dataset = RealVideoDataset(out, size=32)
+    assert [(v.name, v.frame_count, v.fps, v.wind) for v in dataset.videos] == [
+        ("v000", 10, 15.0, "W2")
+    ]
+    assert dataset.read_frames(0).shape == (10, 32, 32, 3)
+
+
+def test_fabrics_zero_is_refused_in_one_line(tmp_path):
+    done = _command("--out", str(tmp_path / "set"), "--fabrics", "0")
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "error: --fabrics must be an integer in [1, 1000], got 0"
+    ]
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--winds", "4"], "error: --winds must be an integer in [1, 3], got 4"),
+        (["--size", "abc"], "error: --size must be an integer in [16, 1024], got 'abc'"),
+        (["--fps", "0"], "error: --fps must be a number in [1.0, 240.0], got 0"),
+        (["--frames", "5"], "error: --frames must be an integer in [10, 100000], got 5"),
+        (["--codec", "gif"], "error: --codec must be one of h264, mjpeg, png; got 'gif'"),
+    ],
+)
+def test_bad_values_are_refused_in_one_line_before_any_work(args, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as info:
+        independent.main(["--out", str(tmp_path / "set"), *args])
+    assert info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines() == [message]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_existing_folder_is_refused(tmp_path, capsys):
+    (tmp_path / "set").mkdir()
+    with pytest.raises(SystemExit):
+        independent.main(["--out", str(tmp_path / "set")])
+    assert "exists; choose another folder or pass --overwrite" in capsys.readouterr().err
