@@ -40,8 +40,15 @@ from .diagnosis import (
     shapley_values,
     stage_of_residual,
 )
-from .diagnosis.joint import Assignment, Factor, closure_values, fit_jointly
-from .diagnosis.reference import compare_domains
+from .diagnosis.joint import (
+    Assignment,
+    Factor,
+    closure_values,
+    divergence_closure,
+    fit_jointly,
+    nominal_scores,
+)
+from .diagnosis.reference import Reference, compare_domains
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
 from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
@@ -489,7 +496,7 @@ def run_diagnosis(
     )  # fmt: skip
     tick = time.perf_counter()
     joint = _joint_fit(
-        plan, results, null, spec, library, budget, build=build, sets=sets, nominal=nominal,
+        plan, results, null, spec, library, budget, build=build, sets=sets, reference=reference,
         value_of=lambda built: closure_values(built, reference, n_boot=budget.n_boot, seed=seed),
     )  # fmt: skip
     timing["joint"] = time.perf_counter() - tick
@@ -768,33 +775,51 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
     }
 
 
-def _joint_factors(plan: list[tuple], results: list, null, budget: Budget) -> list[Factor]:
-    """The factors of the joint fit: the best candidates that close more than S' does.
+def _joint_factors(plan: list[tuple], results: list, null, reference: Reference,
+                   budget: Budget) -> list[Factor]:  # fmt: skip
+    """The factors of the joint fit: the candidates that remove the most divergence alone.
 
-    At most ``budget.joint_top``, best first, and one per setting (two candidates that set
-    one field cannot both hold). Each starts at its own best strength and tries up to
-    ``budget.joint_strengths`` of those it was scored at, that one included.
+    Each candidate's best :func:`divergence_closure` over the strengths it was scored at
+    (the classifier's AUC barely moves when one of several differences is removed; its
+    divergence does); those above what S' removes, at most ``budget.joint_top``, best first,
+    one per setting (two candidates that set one field cannot both hold). Each starts at
+    that best strength and tries up to ``budget.joint_strengths`` of its strengths.
     """
-    order = sorted(range(len(plan)), key=lambda i: results[i].best_score, reverse=True)
+    if not reference.rungs:
+        return []
+    nominal = nominal_scores(reference)
+
+    def best(result) -> tuple[float, int]:
+        closures = [
+            float(divergence_closure(
+                nominal, {r: result.scores_oof[r][j] for r in reference.rungs}, reference))
+            for j in range(len(result.strengths))
+        ]  # fmt: skip
+        j = int(np.argmax(closures))
+        return closures[j], j
+
+    chance = max(best(null)[0], 0.0)
+    ranked = sorted(((best(r), i) for i, r in enumerate(results)), key=lambda x: -x[0][0])
     factors, settings = [], set()
-    for i in order:
+    for (closure, j), i in ranked:
         (candidate, values), result = plan[i], results[i]
-        if len(factors) == budget.joint_top or result.best_score <= max(null.best_score, 0.0):
+        if len(factors) == budget.joint_top or closure <= chance:
             break
         if (candidate.registry, candidate.field) in settings:
             continue
         settings.add((candidate.registry, candidate.field))
-        picked = {values[j] for j in _spread(len(values), budget.joint_strengths)}
-        picked.add(result.best_strength)
+        start = result.strengths[j]
+        picked = {values[k] for k in _spread(len(values), budget.joint_strengths)} | {start}
         options = tuple(v for v in values if v in picked)
-        factors.append(Factor(candidate.name, candidate.stage, options, result.best_strength))
+        factors.append(Factor(candidate.name, candidate.stage, options, start))
     return factors
 
 
-def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, sets, nominal,
+def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, sets, reference,
                value_of):  # fmt: skip
     """The joint calibration and attribution (``None`` with fewer than two factors)."""
-    factors = _joint_factors(plan, results, null, budget)
+    factors = _joint_factors(plan, results, null, reference, budget)
+    nominal = reference.nominal
     if len(factors) < 2:
         return None
 

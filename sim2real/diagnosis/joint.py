@@ -10,10 +10,10 @@ the factors that matter (:attr:`JointFit.shapley`), with group-bootstrap interva
 Shapley values sum to S*'s closure, so "the gap is 40 % scene, 30 % physics, ... and X % is
 unexplained" reads straight off :meth:`JointFit.stage_shares`.
 
-The measure is the diagnosis's closure (:func:`sim2real.diagnosis.candidate_result`): on a
-rung the classifier tells apart perfectly it is the classifier divergence, which keeps
-falling as effects are added where the AUC stays at 1. Nothing here builds sets: the caller
-passes ``evaluate``, which builds and scores a batch of assignments.
+The measure is the share of S's classifier divergence to R that a set removes, over the
+scored rungs (:func:`divergence_closure`): unlike the AUC, which sits near 1 until most of
+several differences are removed, the divergence falls with each one. Nothing here builds
+sets: the caller passes ``evaluate``, which builds and scores a batch of assignments.
 """
 
 from __future__ import annotations
@@ -26,14 +26,15 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from ..ladder import LadderFeatures
-from ..stats import CI_LEVEL, bootstrap_draws, classifier_divergence, weighted_auc
+from ..stats import CI_LEVEL, bootstrap_draws, classifier_divergence
 from .coalitions import shapley_values
 from .reference import Reference
-from .scoring import _auc_floor, candidate_result
+from .scoring import candidate_result
 
 __all__ = [
     "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Value",
-    "assignment", "attribute", "calibrate", "closure_values", "fit_jointly",
+    "assignment", "attribute", "calibrate", "closure_values", "divergence_closure", "fit_jointly",
+    "nominal_scores",
 ]  # fmt: skip
 
 
@@ -101,48 +102,78 @@ Evaluate = Callable[[Sequence[Assignment]], list[Value]]
 """Builds (or finds cached) and scores a batch of assignments, in order."""
 
 
+def _divergence(scores: np.ndarray, labels: np.ndarray, weights: np.ndarray | None):
+    """The classifier divergence averaged over the CV repeats (per replicate with weights)."""
+    if weights is None:
+        return float(np.mean([classifier_divergence(row, labels) for row in scores]))
+    return np.mean([classifier_divergence(row, labels, weights) for row in scores], axis=0)
+
+
+def divergence_closure(
+    nominal_oof: dict[str, np.ndarray],
+    set_oof: dict[str, np.ndarray],
+    reference: Reference,
+    weights: np.ndarray | None = None,
+):
+    """Share of S's classifier divergence to R that a set removes, over the scored rungs.
+
+    Per rung ``(D(S, R) - D(S_e, R)) / D(S, R)`` (clipped to [-1, 1]) from the out-of-fold
+    scores of S's and the set's classifiers (``{rung: (repeats, n + m)}``), weighted by the
+    classifier gap each rung carries (:meth:`ReferenceScores.weights`). The divergence keeps
+    falling with every difference removed where the AUC stays near 1, so several effects at
+    once are resolved one by one. With ``weights`` (row weights (n + m, B)) one value per
+    bootstrap replicate.
+    """
+    n = len(reference.nominal)
+    labels = np.r_[np.zeros(n), np.ones(len(reference.real))]
+    rung_weights = reference.before.weights(reference.gaps, reference.rungs)
+    total = 0.0 if weights is None else np.zeros(weights.shape[1])
+    for r, rung in enumerate(reference.rungs):
+        before = _divergence(nominal_oof[rung], labels, weights)
+        after = _divergence(set_oof[rung], labels, weights)
+        closed = np.clip((before - after) / np.maximum(before, 1e-3), -1.0, 1.0)
+        total = total + rung_weights[r] * np.nan_to_num(closed, nan=0.0)
+    return total
+
+
+def nominal_scores(reference: Reference) -> dict[str, np.ndarray]:
+    """S's own out-of-fold scores against R per scored rung, as every set's are measured."""
+    scored = candidate_result("S", "null", (None,), [reference.nominal], reference.nominal,
+                              reference.real, reference.gaps, reference.rungs,
+                              reference.before)  # fmt: skip
+    return {rung: scored.scores_oof[rung][0] for rung in reference.rungs}
+
+
 def closure_values(
     sets: Sequence[LadderFeatures], reference: Reference, *, n_boot: int, seed: int
 ) -> list[Value]:
-    """The closure of each set (as :func:`candidate_result` scores it) with its replicates.
+    """The :func:`divergence_closure` of each set, with its group-bootstrap replicates.
 
     A replicate redraws S's simulations and R's videos by group (the same draws for every
-    set: S_e holds S's simulations) and re-scores both S's and the set's out-of-fold
-    classifier measure on every scored rung, the divergence on a saturated rung and the AUC
-    above its floor elsewhere (classifiers held fixed). S itself closes exactly 0, in every
+    set: S_e holds S's simulations) and re-measures S's and the set's divergence from their
+    out-of-fold scores (classifiers held fixed). S itself closes exactly 0, in every
     replicate.
     """
-    sim, real, before = reference.nominal, reference.real, reference.before
-    gaps, rungs = reference.gaps, reference.rungs
+    sim, real = reference.nominal, reference.real
     for features in sets:
         if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
             raise ValueError("closure_values: every set must hold S's simulations, in S's order")
-    rng = np.random.default_rng([seed, 64])
     scored = candidate_result("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets], sim,
-                              real, gaps, rungs, before)  # fmt: skip
+                              real, reference.gaps, reference.rungs,
+                              reference.before)  # fmt: skip
+    rng = np.random.default_rng([seed, 64])
     codes_x = np.unique(sim.groups, return_inverse=True)[1].reshape(-1)
     codes_y = np.unique(real.groups, return_inverse=True)[1].reshape(-1)
     draws_x = bootstrap_draws(int(codes_x.max()) + 1, n_boot, rng)
     draws_y = bootstrap_draws(int(codes_y.max()) + 1, n_boot, rng)
     weights = np.concatenate([draws_x[codes_x], draws_y[codes_y]]).astype(np.float64)
-    labels = np.r_[np.zeros(len(codes_x)), np.ones(len(codes_y))]
-    rung_weights = before.weights(gaps, rungs)
-    replicates = np.zeros((len(sets), n_boot))
-
-    def measured(measure, scores: np.ndarray) -> np.ndarray:  # mean over the CV repeats
-        return np.mean([measure(row, labels, weights) for row in scores], axis=0)
-
-    for r, rung in enumerate(rungs):
-        saturated = before.saturated(rung)
-        measure = classifier_divergence if saturated else weighted_auc
-        floor = 0.0 if saturated else _auc_floor(gaps[rung])
-        oof = scored.scores_oof[rung]
-        reference = measured(measure, oof[0])
-        span = np.maximum(reference - floor, 1e-3)
-        for i in range(len(sets)):
-            closed = np.clip((reference - measured(measure, oof[i + 1])) / span, -1.0, 1.0)
-            replicates[i] += rung_weights[r] * np.nan_to_num(closed, nan=0.0)
-    return [Value(float(scored.score[i + 1]), replicates[i]) for i in range(len(sets))]
+    nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
+    values = []
+    for i in range(len(sets)):
+        own = {rung: oof[i + 1] for rung, oof in scored.scores_oof.items()}
+        values.append(Value(float(divergence_closure(nominal, own, reference)),
+                            divergence_closure(nominal, own, reference, weights)))  # fmt: skip
+    return values
 
 
 def _nominal(count: int) -> Value:
