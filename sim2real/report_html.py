@@ -91,7 +91,7 @@ _TEMPLATE = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
 <style>
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
-line-height:1.45;color:#222}
+line-height:1.45;color:#222;overflow-wrap:anywhere}
 .answer{font-size:1.1em;background:#f3f6fa;border-left:4px solid #3b6ea5;padding:.8em 1em}
 table{border-collapse:collapse;margin:.6em 0 1.2em;font-size:.88em}
 th,td{border:1px solid #ccc;padding:.25em .55em;text-align:left;vertical-align:top}
