@@ -226,6 +226,11 @@ def _sim_key(job: SetJob, context: SetContext) -> str:
     )  # fmt: skip
 
 
+def null_job(spec: DatasetSpec) -> SetJob:
+    """The set S': the nominal spec under simulation seeds :data:`NULL_SEED_OFFSET` away."""
+    return SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))
+
+
 def nominal_path(spec: DatasetSpec, context: SetContext) -> Path:
     """Where the nominal set S's features are cached."""
     return _cache_path(context, _sim_key(SetJob("S", spec), context))
@@ -405,7 +410,7 @@ def run_diagnosis(
 
     # S': the nominal scene under other simulation seeds (the null candidate, and the gap
     # test's second nominal draw).
-    jobs = [SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))]
+    jobs = [null_job(spec)]
     jobs += _candidate_jobs(spec, plan)
     sets, cached = run_jobs(jobs, context, n_jobs, progress, timing)
 

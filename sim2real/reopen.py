@@ -26,12 +26,12 @@ from .diagnosis.scoring import candidate_result
 from .domains import real_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import (
-    NULL_SEED_OFFSET,
     Budget,
     SetContext,
     SetJob,
     assignment_job,
     nominal_path,
+    null_job,
     real_ladder,
     run_jobs,
 )
@@ -135,8 +135,7 @@ def reopen(diagnosis: Diagnosis) -> Reopened:
             "rerun the diagnosis"
         )
     nominal = LadderFeatures.load(path)
-    null_job = SetJob("S'", dataclasses.replace(spec, seed=spec.seed + NULL_SEED_OFFSET))
-    null = run_jobs([null_job], context, 1, False, {})[0]["S'"]
+    null = run_jobs([null_job(spec)], context, 1, False, {})[0]["S'"]
     budget = Budget(**{k: tuple(v) if isinstance(v, list) else v
                        for k, v in info.budget_settings.items()})  # fmt: skip
     reference = compare_domains(
