@@ -122,10 +122,19 @@ class EnergyBendingDihedral(Energy):
             samples = samples[..., :1].expand_as(samples)
         return EnergyBendingDihedral(samples.contiguous())
 
+    def rest_data(self, model) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rest lengths [m] and adjacent rest areas [m²] of the hinges.
+
+        The shared mesh's, shape (E,); a subclass with per-instance rest shapes returns
+        (B, E), and every other method follows.
+        """
+        return model.mesh.edge_rest_length, model.mesh.edge_rest_area
+
     def _terms(self, model, pos):
         mesh = model.mesh
+        rest_length, rest_area = self.rest_data(model)
         delta = dihedral_angle(pos, mesh.edge_indices) - mesh.edge_rest_angle
-        scale = mesh.edge_rest_length / mesh.edge_rest_area  # [1/m]
+        scale = rest_length / rest_area  # [1/m]
         kappa = delta.abs() * scale
         psi, k_val, k_slope = _secant_integral(self.edge_stiffness, kappa)
         return delta, scale, kappa, psi, k_val, k_slope
@@ -133,11 +142,11 @@ class EnergyBendingDihedral(Energy):
     def energy(self, model, pos):
         """Bending energy [J], shape (B,)."""
         _, _, _, psi, _, _ = self._terms(model, pos)
-        return BEND_SCALE * (model.mesh.edge_rest_area * psi).sum(-1)
+        return BEND_SCALE * (self.rest_data(model)[1] * psi).sum(-1)
 
     def _derivatives(self, model, pos):
         delta, scale, kappa, _, k_val, k_slope = self._terms(model, pos)
-        area = model.mesh.edge_rest_area
+        area = self.rest_data(model)[1]
         d_e = BEND_SCALE * area * scale * scale * k_val * delta  # dE/dtheta
         dd_e = BEND_SCALE * area * scale * scale * (k_val + k_slope * kappa)  # d²E/dtheta²
         return d_e, dd_e, dihedral_angle_gradient(pos, model.mesh.edge_indices)

@@ -158,8 +158,18 @@ def _green_strain(fmat: torch.Tensor) -> torch.Tensor:
 
 
 def _shape_coeffs(rest_inv: torch.Tensor) -> torch.Tensor:
-    """c[i, a] = dF[:, a] / dx_i for the three triangle vertices, shape (F, 3, 2)."""
-    return torch.cat([-rest_inv.sum(dim=1, keepdim=True), rest_inv], dim=1)
+    """c[..., i, a] = dF[:, a] / dx_i for the three triangle vertices.
+
+    Shape (F, 3, 2) from a shared rest_inv (F, 2, 2) [1/m], (B, F, 3, 2) from a per-instance
+    one (B, F, 2, 2).
+    """
+    return torch.cat([-rest_inv.sum(dim=-2, keepdim=True), rest_inv], dim=-2)
+
+
+def _geometric_stiffness(c: torch.Tensor, smat: torch.Tensor) -> torch.Tensor:
+    """``c S c^T`` per triangle, shape (B, F, 3, 3), from c (F or B, F, 3, 2), S (B, F, 2, 2)."""
+    spec = "fia,zfac,fjc->zfij" if c.dim() == 3 else "zfia,zfac,zfjc->zfij"
+    return torch.einsum(spec, c, smat, c)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,15 +197,22 @@ class EnergyMembraneWang(Energy):
             fibres = torch.zeros_like(fibres)
         return EnergyMembraneWang(row0.contiguous(), fibres.contiguous())
 
+    def rest_data(self, model) -> tuple[torch.Tensor, torch.Tensor]:
+        """Inverse rest edge matrices [1/m] and rest areas [m²] of the triangles.
+
+        The shared mesh's, shapes (F, 2, 2) and (F,); a subclass with per-instance rest
+        shapes returns (B, F, 2, 2) and (B, F), and every other method follows.
+        """
+        return model.mesh.tri_rest_inv, model.mesh.tri_rest_area
+
     def _strain(self, model, pos):
-        mesh = model.mesh
-        fmat = deformation_gradient(pos, mesh.tri_indices, mesh.tri_rest_inv)
+        fmat = deformation_gradient(pos, model.mesh.tri_indices, self.rest_data(model)[0])
         return fmat, _green_strain(fmat)
 
     def energy(self, model, pos):
         """Sum over triangles of rest area times W [J], shape (B,)."""
         _, g = self._strain(model, pos)
-        return (membrane_density(g, self.row0, self.fibres) * model.mesh.tri_rest_area).sum(-1)
+        return (membrane_density(g, self.row0, self.fibres) * self.rest_data(model)[1]).sum(-1)
 
     def _stress(self, g):
         """S = dW/dg, shape (B, F, 3), and the fibre strains (B, F, 8)."""
@@ -208,10 +225,9 @@ class EnergyMembraneWang(Energy):
 
     def _strain_jacobian(self, model, fmat):
         """J[b, f, i, v, :] = d g_v / d x_i, shape (B, F, 3, 3, 3)."""
-        c = _shape_coeffs(model.mesh.tri_rest_inv)  # (F, 3, 2)
+        c = _shape_coeffs(self.rest_data(model)[0])  # (F, 3, 2) or (B, F, 3, 2)
         f0, f1 = fmat[..., 0], fmat[..., 1]  # (B, F, 3)
-        c0 = c[None, :, :, 0, None]
-        c1 = c[None, :, :, 1, None]
+        c0, c1 = c[..., 0, None], c[..., 1, None]
         j0 = c0 * f0[:, :, None]
         j1 = c1 * f1[:, :, None]
         j2 = 0.5 * (c1 * f0[:, :, None] + c0 * f1[:, :, None])
@@ -222,7 +238,7 @@ class EnergyMembraneWang(Energy):
         fmat, g = self._strain(model, pos)
         s, _ = self._stress(g)
         jac = self._strain_jacobian(model, fmat)
-        area = model.mesh.tri_rest_area[None, :, None, None]
+        area = self.rest_data(model)[1][..., None, None]
         per_vert = torch.einsum("bfv,bfivx->bfix", s, jac) * area
         return scatter_vertices(per_vert, model.mesh.tri_indices, pos.shape[1])
 
@@ -245,7 +261,8 @@ class EnergyMembraneWang(Energy):
         weights = self.fibres[:, None, :] * _phi(eps, 2)  # (B, F, 8)
         cmat = cmat + torch.einsum("bfi,iv,iw->bfvw", weights, vectors, vectors)
         jac = self._strain_jacobian(model, fmat)  # (B, F, i, v, x)
-        area = mesh.tri_rest_area[None, :, None, None]
+        rest_inv, rest_area = self.rest_data(model)
+        area = rest_area[..., None, None]
         cj = torch.einsum("zfvw,zfjwy->zfjvy", cmat * area, jac)
         blocks = torch.einsum("zfivx,zfjvy->zfijxy", jac, cj)
         smat = torch.stack(
@@ -256,8 +273,7 @@ class EnergyMembraneWang(Energy):
             dim=-2,
         )
         smat = psd_project_sym2(smat) * area
-        c = _shape_coeffs(mesh.tri_rest_inv)
-        geo = torch.einsum("fia,zfac,fjc->zfij", c, smat, c)  # (B, F, 3, 3) times identity
+        geo = _geometric_stiffness(_shape_coeffs(rest_inv), smat)  # times identity
         blocks.diagonal(dim1=-2, dim2=-1).add_(geo[..., None])
         batch = pos.shape[0]
         return ElementBlocks(

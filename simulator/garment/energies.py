@@ -10,9 +10,9 @@
   :class:`~simulator.energies.EnergyMembraneWang` and
   :class:`~simulator.energies.EnergyBendingDihedral` with rest data per instance, shape
   (B, F, ...) / (B, E), instead of the shared mesh's: a swarm of particles with different
-  sizing G (different flat panels on one topology) runs as one batch. With equal rest shapes
-  they equal the core terms (the tests' reference); the compiled kernels take only the core
-  types, so these stay on the torch path.
+  sizing G (different flat panels on one topology) runs as one batch. They override only the
+  core's ``rest_data``, so with equal rest shapes they equal the core terms (the tests'
+  reference); the compiled kernels take only the core types, so these stay on the torch path.
 """
 
 from __future__ import annotations
@@ -23,10 +23,8 @@ import numpy as np
 import torch
 
 from simulator.energies import EnergyBendingDihedral, EnergyMembraneWang
-from simulator.energies.base import ElementBlocks, Energy, psd_project_sym2
-from simulator.energies.bending import BEND_SCALE, _secant_integral
-from simulator.energies.membrane import _fibre_vectors, _green_strain, _phi, membrane_density
-from simulator.geometry import deformation_gradient, dihedral_angle, flat_indices, scatter_vertices
+from simulator.energies.base import ElementBlocks, Energy
+from simulator.geometry import flat_indices, scatter_vertices
 
 __all__ = [
     "SEAM_STIFFNESS",
@@ -159,11 +157,6 @@ def _hinge_triangles(tri: torch.Tensor, edges: torch.Tensor) -> tuple[torch.Tens
     )
 
 
-def _shape_coeffs(rest_inv: torch.Tensor) -> torch.Tensor:
-    """c[..., i, a] = dF[:, a] / dx_i, rest_inv (B, F, 2, 2) -> (B, F, 3, 2)."""
-    return torch.cat([-rest_inv.sum(dim=-2, keepdim=True), rest_inv], dim=-2)
-
-
 @dataclasses.dataclass(frozen=True)
 class EnergyMembranePattern(EnergyMembraneWang):
     """:class:`EnergyMembraneWang` with per-instance rest shapes (B, F, ...)."""
@@ -184,69 +177,9 @@ class EnergyMembranePattern(EnergyMembraneWang):
         )
         return EnergyMembranePattern(core.row0, core.fibres, rest.tri_rest_inv, rest.tri_rest_area)
 
-    def _strain(self, model, pos):
-        fmat = deformation_gradient(pos, model.mesh.tri_indices, self.rest_inv)
-        return fmat, _green_strain(fmat)
-
-    def energy(self, model, pos):
-        """Sum over triangles of rest area times W [J], shape (B,)."""
-        _, g = self._strain(model, pos)
-        return (membrane_density(g, self.row0, self.fibres) * self.rest_area).sum(-1)
-
-    def _strain_jacobian(self, model, fmat):
-        c = _shape_coeffs(self.rest_inv)  # (B, F, 3, 2)
-        f0, f1 = fmat[..., 0], fmat[..., 1]
-        c0, c1 = c[..., 0, None], c[..., 1, None]
-        j0 = c0 * f0[:, :, None]
-        j1 = c1 * f1[:, :, None]
-        j2 = 0.5 * (c1 * f0[:, :, None] + c0 * f1[:, :, None])
-        return torch.stack([j0, j1, j2], dim=3)
-
-    def gradient(self, model, pos):
-        """Analytic dE/dx [N], shape (B, V, 3)."""
-        fmat, g = self._strain(model, pos)
-        s, _ = self._stress(g)
-        jac = self._strain_jacobian(model, fmat)
-        per_vert = torch.einsum("bfv,bfivx->bfix", s, jac) * self.rest_area[..., None, None]
-        return scatter_vertices(per_vert, model.mesh.tri_indices, pos.shape[1])
-
-    def hessian_blocks(self, model, pos):
-        """Exact material term plus PSD-clamped geometric stiffness (as the core term)."""
-        tri = model.mesh.tri_indices
-        fmat, g = self._strain(model, pos)
-        s, eps = self._stress(g)
-        k0, k1, k2, k3 = (self.row0[:, i, None] for i in range(4))
-        zero = torch.zeros_like(g[..., 0])
-        cmat = torch.stack(
-            [
-                torch.stack([k0 + zero, k1 + zero, zero], -1),
-                torch.stack([k1 + zero, k2 + zero, zero], -1),
-                torch.stack([zero, zero, k3 + zero], -1),
-            ],
-            dim=-2,
-        )
-        vectors = _fibre_vectors(g.dtype, g.device)
-        weights = self.fibres[:, None, :] * _phi(eps, 2)
-        cmat = cmat + torch.einsum("bfi,iv,iw->bfvw", weights, vectors, vectors)
-        jac = self._strain_jacobian(model, fmat)
-        area = self.rest_area[..., None, None]
-        cj = torch.einsum("zfvw,zfjwy->zfjvy", cmat * area, jac)
-        blocks = torch.einsum("zfivx,zfjvy->zfijxy", jac, cj)
-        smat = torch.stack(
-            [
-                torch.stack([s[..., 0], 0.5 * s[..., 2]], -1),
-                torch.stack([0.5 * s[..., 2], s[..., 1]], -1),
-            ],
-            dim=-2,
-        )
-        smat = psd_project_sym2(smat) * area
-        c = _shape_coeffs(self.rest_inv)
-        geo = torch.einsum("zfia,zfac,zfjc->zfij", c, smat, c)
-        blocks.diagonal(dim1=-2, dim2=-1).add_(geo[..., None])
-        batch = pos.shape[0]
-        return ElementBlocks(
-            flat_indices(tri, batch, pos.shape[1]), blocks.reshape(-1, 3, 3, 3, 3), tri
-        )
+    def rest_data(self, model) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-instance inverse rest edge matrices [1/m], (B, F, 2, 2), and areas [m²], (B, F)."""
+        return self.rest_inv, self.rest_area
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,24 +202,6 @@ class EnergyBendingPattern(EnergyBendingDihedral):
         )
         return EnergyBendingPattern(core.edge_stiffness, rest.edge_rest_length, rest.edge_rest_area)
 
-    def _terms(self, model, pos):
-        mesh = model.mesh
-        delta = dihedral_angle(pos, mesh.edge_indices) - mesh.edge_rest_angle
-        scale = self.rest_length / self.rest_area
-        kappa = delta.abs() * scale
-        psi, k_val, k_slope = _secant_integral(self.edge_stiffness, kappa)
-        return delta, scale, kappa, psi, k_val, k_slope
-
-    def energy(self, model, pos):
-        """Bending energy [J], shape (B,)."""
-        _, _, _, psi, _, _ = self._terms(model, pos)
-        return BEND_SCALE * (self.rest_area * psi).sum(-1)
-
-    def _derivatives(self, model, pos):
-        from simulator.geometry import dihedral_angle_gradient
-
-        delta, scale, kappa, _, k_val, k_slope = self._terms(model, pos)
-        area = self.rest_area
-        d_e = BEND_SCALE * area * scale * scale * k_val * delta
-        dd_e = BEND_SCALE * area * scale * scale * (k_val + k_slope * kappa)
-        return d_e, dd_e, dihedral_angle_gradient(pos, model.mesh.edge_indices)
+    def rest_data(self, model) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-instance hinge rest lengths [m] and adjacent rest areas [m²], shape (B, E)."""
+        return self.rest_length, self.rest_area
