@@ -16,7 +16,7 @@ import torch
 
 from common.errors import user_error
 
-__all__ = ["MeshError", "TriMesh"]
+__all__ = ["MeshError", "TriMesh", "tensor_fields_to"]
 
 _DEGENERATE_AREA = 1e-12  # m², smallest rest triangle area accepted
 
@@ -24,6 +24,23 @@ _DEGENERATE_AREA = 1e-12  # m², smallest rest triangle area accepted
 @user_error
 class MeshError(ValueError):
     """Raised for a mesh that the simulator cannot use (names the field at fault)."""
+
+
+def tensor_fields_to(
+    obj, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+):
+    """Copy of the frozen dataclass ``obj`` with every tensor field moved to ``device``.
+
+    Float tensors are also cast to ``dtype`` (kept when ``None``); integer tensors keep theirs
+    and other fields are left as they are.
+    """
+    changes = {}
+    for field in dataclasses.fields(obj):
+        value = getattr(obj, field.name)
+        if isinstance(value, torch.Tensor):
+            fdtype = dtype if value.is_floating_point() else None
+            changes[field.name] = value.to(device=device, dtype=fdtype)
+    return dataclasses.replace(obj, **changes)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,14 +94,7 @@ class TriMesh:
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None):
         """Return a copy on ``device`` with float fields cast to ``dtype``."""
-        changes = {}
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if value.is_floating_point():
-                changes[field.name] = value.to(device=device, dtype=dtype or value.dtype)
-            else:
-                changes[field.name] = value.to(device=device)
-        return dataclasses.replace(self, **changes)
+        return tensor_fields_to(self, device, dtype)
 
     @staticmethod
     def grid(

@@ -17,7 +17,7 @@ import math
 import numpy as np
 import torch
 
-from .mesh import MeshError
+from .mesh import MeshError, tensor_fields_to
 
 __all__ = ["TetMesh", "voxel_aggregates"]
 
@@ -83,14 +83,7 @@ class TetMesh:
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None):
         """Return a copy on ``device`` with float fields cast to ``dtype``."""
-        changes = {}
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if value.is_floating_point():
-                changes[field.name] = value.to(device=device, dtype=dtype or value.dtype)
-            else:
-                changes[field.name] = value.to(device=device)
-        return dataclasses.replace(self, **changes)
+        return tensor_fields_to(self, device, dtype)
 
     def locate(self, points: torch.Tensor, *, chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor]:
         """Tet containing each rest-space point and its barycentric weights there.

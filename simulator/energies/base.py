@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from ..mesh import tensor_fields_to
+
 if TYPE_CHECKING:
     from ..model import SimControl, SimModel
 
@@ -101,13 +103,7 @@ class Energy:
 
     def to(self, device=None, dtype=None):
         """Copy with every tensor field moved to ``device`` / ``dtype`` (floats only)."""
-        changes = {}
-        for field in dataclasses.fields(self):  # type: ignore[arg-type]
-            value = getattr(self, field.name)
-            if isinstance(value, torch.Tensor):
-                fdtype = dtype if value.is_floating_point() else None
-                changes[field.name] = value.to(device=device, dtype=fdtype)
-        return dataclasses.replace(self, **changes)  # type: ignore[type-var]
+        return tensor_fields_to(self, device, dtype)
 
 
 def psd_project_sym2(mat: torch.Tensor) -> torch.Tensor:
