@@ -14,39 +14,30 @@ import dataclasses
 import torch
 
 from ..model import SimControl, SimModel, SimState
-from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
-from .base import IncrementalPotential, begin_step, bind_energies, split_for_backend, with_pins
+from ..solvers.newton import NewtonSettings, StepStats
+from .base import (
+    IncrementalPotential,
+    Integrator,
+    bind_energies,
+    minimize_pinned,
+    split_for_backend,
+)
 
 __all__ = ["IntegratorBackwardEuler", "solve_static"]
 
 
 @dataclasses.dataclass(frozen=True)
-class IntegratorBackwardEuler:
+class IntegratorBackwardEuler(Integrator):
     """First-order implicit integrator; unconditionally stable, numerically damped."""
 
-    settings: NewtonSettings = dataclasses.field(default_factory=NewtonSettings)
-
-    def step(
-        self,
-        model: SimModel,
-        state: SimState,
-        control: SimControl,
-        dt: float,
-        *,
-        settings: NewtonSettings | None = None,
-    ) -> tuple[SimState, StepStats]:
-        """Advance every instance by ``dt`` [s]."""
-        settings = settings or self.settings
-        energies, step_forces = begin_step(model, state, control, dt)
+    def advance(self, model, state, control, dt, energies, step_forces, settings):
+        """Backward-Euler step from the step's bound energies and forces."""
         x_pred = state.pos + dt * state.vel
         shell, energies = split_for_backend(settings.backend, model, energies)
         objective = IncrementalPotential(
             model, energies, step_forces, state.pos, x_pred, dt, shell=shell
         )
-        x0 = with_pins(model, x_pred, control)
-        x, stats = newton_minimize(
-            objective, x0, model.free_mask(), settings, aggregates=model.aggregates
-        )
+        x, stats = minimize_pinned(model, objective, x_pred, control, settings)
         vel = (x - state.pos) / dt
         return SimState(pos=x, vel=vel, time=state.time + dt), stats
 
@@ -72,11 +63,5 @@ def solve_static(
     objective = IncrementalPotential(
         model, energies, (), state.pos, state.pos, None, regularization=regularization, shell=shell
     )
-    x, stats = newton_minimize(
-        objective,
-        with_pins(model, state.pos, control),
-        model.free_mask(),
-        settings,
-        aggregates=model.aggregates,
-    )
+    x, stats = minimize_pinned(model, objective, state.pos, control, settings)
     return dataclasses.replace(state, pos=x, vel=torch.zeros_like(x), acc=None), stats

@@ -3,17 +3,24 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import torch
 
 from ..energies.base import ElementBlocks
 from ..solvers.block_sparse import BlockSparse
+from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
+
+if TYPE_CHECKING:
+    from ..model import SimControl, SimModel, SimState
 
 __all__ = [
     "IncrementalPotential",
+    "Integrator",
     "SimulationDiverged",
     "begin_step",
     "bind_energies",
+    "minimize_pinned",
     "split_for_backend",
     "with_pins",
 ]
@@ -56,6 +63,56 @@ def with_pins(model, pos: torch.Tensor, control) -> torch.Tensor:
     out = pos.clone()
     out[:, model.pin_indices] = control.pin_pos.to(pos)
     return out
+
+
+def minimize_pinned(model, objective, start: torch.Tensor, control, settings):
+    """Newton minimiser of ``objective`` from ``start`` (B, V, 3) [m], pins held at ``control``.
+
+    Returns the positions [m], shape (B, V, 3), and the solver's ``StepStats``.
+    """
+    return newton_minimize(
+        objective,
+        with_pins(model, start, control),
+        model.free_mask(),
+        settings,
+        aggregates=model.aggregates,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Integrator:
+    """An implicit integrator on the shared Newton core, with a pure ``step``."""
+
+    settings: NewtonSettings = dataclasses.field(default_factory=NewtonSettings)
+    """Newton and CG settings of a ``step`` given none."""
+
+    def step(
+        self,
+        model: SimModel,
+        state: SimState,
+        control: SimControl,
+        dt: float,
+        *,
+        settings: NewtonSettings | None = None,
+    ) -> tuple[SimState, StepStats]:
+        """Advance every instance by ``dt`` [s]."""
+        energies, step_forces = begin_step(model, state, control, dt)
+        return self.advance(
+            model, state, control, dt, energies, step_forces, settings or self.settings
+        )
+
+    def advance(
+        self,
+        model: SimModel,
+        state: SimState,
+        control: SimControl,
+        dt: float,
+        energies: tuple,
+        step_forces: tuple,
+        settings: NewtonSettings,
+    ) -> tuple[SimState, StepStats]:
+        """The step itself, given the step's bound energies and linearised forces."""
+        raise NotImplementedError
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,18 +23,16 @@ import math
 
 import torch
 
-from ..model import SimControl, SimModel, SimState
-from ..solvers.newton import NewtonSettings, StepStats, newton_minimize
-from .base import IncrementalPotential, begin_step, with_pins
+from ..model import SimModel, SimState
+from .base import IncrementalPotential, Integrator, minimize_pinned
 
 __all__ = ["IntegratorNewmark"]
 
 
 @dataclasses.dataclass(frozen=True)
-class IntegratorNewmark:
+class IntegratorNewmark(Integrator):
     """Newmark-beta integrator on the shared Newton core; pure ``step`` like backward Euler."""
 
-    settings: NewtonSettings = dataclasses.field(default_factory=NewtonSettings)
     beta: float = 0.25
     """Displacement weight of the end-of-step acceleration, in [gamma / 2, 1/2]."""
     gamma: float = 0.5
@@ -63,19 +61,9 @@ class IntegratorNewmark:
             force = force + f.force(state.vel)
         return force / model.vert_mass[..., None] * model.free_mask()
 
-    def step(
-        self,
-        model: SimModel,
-        state: SimState,
-        control: SimControl,
-        dt: float,
-        *,
-        settings: NewtonSettings | None = None,
-    ) -> tuple[SimState, StepStats]:
-        """Advance every instance by ``dt`` [s]; the result carries ``acc``."""
-        settings = settings or self.settings
+    def advance(self, model, state, control, dt, energies, step_forces, settings):
+        """Newmark step from the step's bound energies and forces; the result carries ``acc``."""
         beta, gamma = self.beta, self.gamma
-        energies, step_forces = begin_step(model, state, control, dt)
         acc = state.acc
         if acc is None:
             acc = self.acceleration(model, state, energies, step_forces)
@@ -94,9 +82,8 @@ class IntegratorNewmark:
             velocity_dt=h_v,
         )
         # Start from a_{n+1} = a_n.
-        x0 = with_pins(model, x_pred + beta * dt * dt * acc, control)
-        x, stats = newton_minimize(
-            objective, x0, model.free_mask(), settings, aggregates=model.aggregates
+        x, stats = minimize_pinned(
+            model, objective, x_pred + beta * dt * dt * acc, control, settings
         )
         acc_new = (x - x_pred) / (beta * dt * dt)
         vel = v_pred + gamma * dt * acc_new
