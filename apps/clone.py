@@ -66,10 +66,9 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from apps.recording import Recording
-from common.checks import check_choice, check_device, check_float, check_int, check_threads
+from apps.recording import check_app_fields
+from common.checks import check_choice, check_device, check_float, check_int
 from common.commands import hydra_command
-from common.configs import config_errors
 from common.errors import InputError
 from common.paths import check_output_dir
 from datasets.generate import spec_from_config
@@ -369,10 +368,7 @@ def _checked(cfg: DictConfig) -> dict:
     for field, allowed in (("video", VIDEO_HELP), ("run", RUN_HELP)):
         if OmegaConf.is_missing(cfg, field):
             raise InputError(f"{field} is required: give {field}=<{allowed}>")
-    with config_errors():
-        threads = check_threads(cfg.threads, "threads")
-    recording = Recording.from_config(cfg)
-    sheet_frames = check_int(cfg.sheet_frames, "sheet_frames", 1)
+    threads, recording, sheet_frames = check_app_fields(cfg)
     target = check_choice(cfg.get("target", "cloth"), "target", CLONE_TARGETS)
     batch_size = check_int(cfg.batch_size, "batch_size", 1)
     device = check_device(cfg.device, "device")

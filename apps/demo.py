@@ -30,10 +30,9 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from apps.recording import Recording
-from common.checks import check_int, check_threads
+from apps.recording import check_app_fields
+from common.checks import check_int
 from common.commands import hydra_command
-from common.configs import config_errors
 from common.paths import check_output_dir
 from datasets.generate import spec_from_config
 from datasets.generation import render_frames, simulate_unit
@@ -82,10 +81,7 @@ def _checked(cfg: DictConfig) -> tuple[DatasetSpec, WorkUnit, dict]:
     Raises:
         InputError: naming the first bad field and its allowed values.
     """
-    with config_errors():
-        threads = check_threads(cfg.threads, "threads")
-    recording = Recording.from_config(cfg)
-    sheet_frames = check_int(cfg.sheet_frames, "sheet_frames", 1)
+    threads, recording, sheet_frames = check_app_fields(cfg)
     spec = spec_from_config(cfg, preset=recording.preset("demo"))
     recording.check_memory(spec, len(spec.classes))
     speeds = getattr(spec.scenario, "wind_speeds", None)

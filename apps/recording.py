@@ -2,18 +2,20 @@
 
 The demo and material cloning each simulate one rollout per class, record ``record_time``
 seconds at ``fps`` and show what follows the ``lead_in`` (while the wind or the arm starts).
+:func:`check_app_fields` checks the fields both commands begin with.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-from common.checks import check_float
+from common.checks import check_float, check_int, check_threads
+from common.configs import config_errors
 from common.errors import InputError
 from datasets.spec import DatasetSpec, SizePreset
 from simulator.cloth.rollout import check_recording_memory
 
-__all__ = ["Recording"]
+__all__ = ["Recording", "check_app_fields"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,3 +65,15 @@ class Recording:
         check_recording_memory(
             self.record_time, self.fps, instances, spec.scenario.mesh().vert_count
         )
+
+
+def check_app_fields(cfg) -> tuple[int, Recording, int]:
+    """The config's ``threads``, recording and ``sheet_frames``, checked in that order.
+
+    Raises:
+        InputError: naming the first bad field and its allowed values.
+    """
+    with config_errors():
+        threads = check_threads(cfg.threads, "threads")
+    recording = Recording.from_config(cfg)
+    return threads, recording, check_int(cfg.sheet_frames, "sheet_frames", 1)
