@@ -23,11 +23,10 @@ import cv2
 import numpy as np
 
 from .patterns import (
-    PHOTO_NAMES,
-    load_photo,
+    draw_kind,
     photos_available,
     random_color,
-    random_crop,
+    random_photo,
     rotated_coords,
     to_uint8,
     value_noise,
@@ -122,9 +121,7 @@ def _shapes(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
 
 
 def _photo(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
-    name = PHOTO_NAMES[int(rng.integers(len(PHOTO_NAMES)))]
-    crop = random_crop(rng, load_photo(name), height, width, min_fraction=0.5)
-    return crop.astype(np.float64) / 255.0
+    return random_photo(rng, height, width, min_fraction=0.5)
 
 
 _GENERATORS = {"gradient": _gradient, "room": _room, "shapes": _shapes, "photo": _photo}
@@ -157,14 +154,7 @@ def make_background(
             raise ValueError(f"background {name} must be a positive integer [px], got {value!r}")
     width, height = int(width), int(height)
     kinds = available_background_kinds() if kinds is None else tuple(kinds)
-    unknown = [k for k in kinds if k not in _GENERATORS]
-    if unknown or not kinds:
-        raise ValueError(
-            f"background kinds must be a non-empty subset of {tuple(_GENERATORS)}, got {kinds}"
-        )
-    if "photo" in kinds and not photos_available():
-        raise ValueError("background kind 'photo' needs scikit-image, which is not installed")
-    kind = kinds[int(rng.integers(len(kinds)))]
+    kind = draw_kind(rng, kinds, _GENERATORS, "background", photos=photos_available())
     image = _GENERATORS[kind](rng, height, width).astype(np.float32)
     sigma = rng.uniform(0.0, 0.01) * max(height, width)
     if sigma > 0.3:

@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping, Sequence
 
 import cv2
 import numpy as np
 
 __all__ = [
     "PHOTO_NAMES",
+    "draw_kind",
     "hsv_to_rgb",
     "load_photo",
     "photos_available",
     "random_color",
     "random_crop",
+    "random_photo",
     "rotated_coords",
     "to_uint8",
     "value_noise",
@@ -160,3 +163,37 @@ def random_crop(
         crop = crop[:, ::-1]
     interpolation = cv2.INTER_AREA if ch >= height else cv2.INTER_LINEAR
     return cv2.resize(np.ascontiguousarray(crop), (width, height), interpolation=interpolation)
+
+
+def random_photo(
+    rng: np.random.Generator, height: int, width: int, *, min_fraction: float
+) -> np.ndarray:
+    """A random crop (:func:`random_crop`) of a random sample photograph, shape (H, W, 3)."""
+    name = PHOTO_NAMES[int(rng.integers(len(PHOTO_NAMES)))]
+    crop = random_crop(rng, load_photo(name), height, width, min_fraction=min_fraction)
+    return crop.astype(np.float64) / 255.0
+
+
+def draw_kind(
+    rng: np.random.Generator,
+    kinds: Sequence[str],
+    generators: Mapping[str, object],
+    what: str,
+    *,
+    photos: bool,
+) -> str:
+    """One of ``kinds`` drawn uniformly, once they are checked against ``generators``.
+
+    ``what`` names the bank in the messages; ``photos`` says whether ``photo`` can be drawn.
+
+    Raises:
+        ValueError: for no kinds, a kind outside ``generators``, or ``photo`` without photos.
+    """
+    unknown = [k for k in kinds if k not in generators]
+    if unknown or not kinds:
+        raise ValueError(
+            f"{what} kinds must be a non-empty subset of {tuple(generators)}, got {kinds}"
+        )
+    if "photo" in kinds and not photos:
+        raise ValueError(f"{what} kind 'photo' needs scikit-image, which is not installed")
+    return kinds[int(rng.integers(len(kinds)))]

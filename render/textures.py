@@ -24,11 +24,10 @@ from enum import StrEnum
 import numpy as np
 
 from .patterns import (
-    PHOTO_NAMES,
-    load_photo,
+    draw_kind,
     photos_available,
     random_color,
-    random_crop,
+    random_photo,
     rotated_coords,
     to_uint8,
     value_noise,
@@ -137,9 +136,7 @@ def _checks(rng: np.random.Generator, size: int) -> np.ndarray:
 
 
 def _photo(rng: np.random.Generator, size: int) -> np.ndarray:
-    name = PHOTO_NAMES[int(rng.integers(len(PHOTO_NAMES)))]
-    crop = random_crop(rng, load_photo(name), size, size, min_fraction=0.35)
-    return crop.astype(np.float64) / 255.0
+    return random_photo(rng, size, size, min_fraction=0.35)
 
 
 _GENERATORS = {
@@ -196,14 +193,6 @@ def make_texture(
     if mode is TextureMode.COLOR:
         colour = random_color(rng, saturation=(0.0, 0.9), value=(0.2, 0.95))
         return np.broadcast_to(to_uint8(colour), (size, size, 3)).copy()
-    available = available_texture_kinds()
-    kinds = available if kinds is None else tuple(kinds)
-    unknown = [k for k in kinds if k not in _GENERATORS]
-    if unknown or not kinds:
-        raise ValueError(
-            f"texture kinds must be a non-empty subset of {tuple(_GENERATORS)}, got {kinds}"
-        )
-    if "photo" in kinds and not photos_available():
-        raise ValueError("texture kind 'photo' needs scikit-image, which is not installed")
-    kind = kinds[int(rng.integers(len(kinds)))]
+    kinds = available_texture_kinds() if kinds is None else tuple(kinds)
+    kind = draw_kind(rng, kinds, _GENERATORS, "texture", photos=photos_available())
     return to_uint8(_GENERATORS[kind](rng, size))
