@@ -88,11 +88,7 @@ def check_material(values: dict, field: str = "material") -> dict[str, float]:
         raise InputError(f"{field}: unknown {unknown}; allowed: {list(specs)}")
     out = {}
     for name, spec in specs.items():
-        value = values.get(name, spec.default)
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            number = math.nan
+        value, number = spec.read(values)
         if (
             isinstance(value, bool)
             or not math.isfinite(number)

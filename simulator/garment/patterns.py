@@ -103,6 +103,14 @@ class ParamSpec:
     default: float
     doc: str
 
+    def read(self, values: Mapping) -> tuple[object, float]:
+        """The value given in ``values`` (else the default) and it as a float, NaN if none."""
+        value = values.get(self.name, self.default)
+        try:
+            return value, float(value)
+        except (TypeError, ValueError):
+            return value, math.nan
+
 
 _SPECS: dict[GarmentType, tuple[ParamSpec, ...]] = {
     GarmentType.SKIRT: (
@@ -173,11 +181,7 @@ def check_params(
         )
     out = {}
     for name, spec in specs.items():
-        value = values.get(name, spec.default)
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            number = math.nan
+        value, number = spec.read(values)
         if isinstance(value, bool) or not math.isfinite(number):
             raise PatternError(f"{field}.{name} must be a number [{spec.unit}], got {value!r}")
         # A relative slack: values read back from JSON or produced by scaling stay valid.
