@@ -47,6 +47,7 @@ from .diagnosis.joint import (
     divergence_closure,
     fit_jointly,
     nominal_scores,
+    point_closures,
 )
 from .diagnosis.reference import Reference, compare_domains
 from .domains import ClipSet, diagnosis_spec, real_clips, simulated_clips
@@ -107,9 +108,12 @@ class Budget:
     """Densify the strength grid around the best strength of the top candidates: ``none``,
     ``visual`` (re-rendered candidates only: no simulation) or ``all``."""
     joint_top: int = 4
-    """Candidates (best first, closing more than S' does, one per setting) calibrated
-    together as the factors of one simulator S* (:mod:`sim2real.diagnosis.joint`); 0 = none.
-    Costs about ``joint_rounds x (strengths + 1)`` sets a factor, then 2^k for attribution."""
+    """Most factors of the calibrated simulator S*, chosen one at a time with the others in
+    place (:mod:`sim2real.diagnosis.joint`); 0 = no joint fit. Costs ``joint_verify`` sets a
+    factor, about ``joint_rounds x (strengths + 1)`` a factor for the refit, then 2^k for
+    attribution."""
+    joint_verify: int = 4
+    """Screened additions (best first) built and measured at each step of the selection."""
     joint_rounds: int = 2
     """Rounds of the joint coordinate ascent (it stops early when a round moves nothing)."""
     joint_strengths: int = 4
@@ -129,6 +133,7 @@ class Budget:
                 check_int("budget.class_grid", count)
         check_int("budget.shapley_top", self.shapley_top, low=0)
         check_int("budget.joint_top", self.joint_top, low=0)
+        check_int("budget.joint_verify", self.joint_verify)
         check_int("budget.joint_rounds", self.joint_rounds)
         check_int("budget.joint_strengths", self.joint_strengths)
         for name in ("n_perm", "n_boot"):
@@ -780,61 +785,60 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
     }
 
 
-def _joint_factors(plan: list[tuple], results: list, null, reference: Reference,
-                   budget: Budget) -> list[Factor]:  # fmt: skip
-    """The factors of the joint fit: the candidates that remove the most divergence alone.
+def _joint_pool(plan: list[tuple], results: list, reference: Reference,
+               budget: Budget) -> list[Factor]:  # fmt: skip
+    """Every candidate as a factor the joint fit may choose, with the strengths it tries.
 
-    Each candidate's best :func:`divergence_closure` over the strengths it was scored at
-    (the classifier's AUC barely moves when one of several differences is removed; its
-    divergence does); those above what S' removes, at most ``budget.joint_top``, best first,
-    one per setting (two candidates that set one field cannot both hold). Each starts at
-    that best strength and tries up to ``budget.joint_strengths`` of its strengths.
+    The strengths are up to ``budget.joint_strengths`` of those the candidate was scored at,
+    spread over them, plus the one that alone removed most of S's divergence to R.
     """
-    if not reference.rungs:
-        return []
     nominal = nominal_scores(reference)
-
-    def best(result) -> tuple[float, int]:
+    pool = []
+    for (candidate, _), result in zip(plan, results, strict=True):
+        values = list(result.strengths)
         closures = [
             float(divergence_closure(
                 nominal, {r: result.scores_oof[r][j] for r in reference.rungs}, reference))
-            for j in range(len(result.strengths))
+            for j in range(len(values))
         ]  # fmt: skip
-        j = int(np.argmax(closures))
-        return closures[j], j
-
-    chance = max(best(null)[0], 0.0)
-    ranked = sorted(((best(r), i) for i, r in enumerate(results)), key=lambda x: -x[0][0])
-    factors, settings = [], set()
-    for (closure, j), i in ranked:
-        (candidate, values), result = plan[i], results[i]
-        if len(factors) == budget.joint_top or closure <= chance:
-            break
-        if (candidate.registry, candidate.field) in settings:
-            continue
-        settings.add((candidate.registry, candidate.field))
-        start = result.strengths[j]
-        picked = {values[k] for k in _spread(len(values), budget.joint_strengths)} | {start}
+        best = values[int(np.argmax(closures))]
+        picked = {values[k] for k in _spread(len(values), budget.joint_strengths)} | {best}
         options = tuple(v for v in values if v in picked)
-        factors.append(Factor(candidate.name, candidate.stage, options, start))
-    return factors
+        setting = f"{candidate.registry}.{candidate.field}"
+        pool.append(Factor(candidate.name, candidate.stage, options, setting=setting))
+    return pool
 
 
 def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, sets, reference,
                value_of):  # fmt: skip
-    """The joint calibration and attribution (``None`` with fewer than two factors)."""
-    factors = _joint_factors(plan, results, null, reference, budget)
-    nominal = reference.nominal
-    if len(factors) < 2:
+    """The joint selection, calibration and attribution (``None`` without a scored rung).
+
+    Additions are screened on S*'s features shifted by each single-candidate set's change
+    (:meth:`LadderFeatures.shifted`); S' sets the floor a first factor must beat.
+    """
+    if budget.joint_top == 0 or not reference.rungs:
         return None
+    nominal = reference.nominal
+    def features_of(chosen: Assignment) -> LadderFeatures:
+        return sets[assignment_job(spec, library, chosen).label] if chosen else nominal
 
     def evaluate(batch: list[Assignment]) -> list:
-        jobs = [assignment_job(spec, library, chosen) for chosen in batch if chosen]
-        build(jobs)
-        labels = iter(j.label for j in jobs)
-        return value_of([sets[next(labels)] if chosen else nominal for chosen in batch])
+        build([assignment_job(spec, library, chosen) for chosen in batch if chosen])
+        return value_of([features_of(chosen) for chosen in batch])
 
-    return fit_jointly(factors, evaluate, rounds=budget.joint_rounds)
+    def screen(current: Assignment, additions) -> list[float]:
+        base = features_of(current)
+        estimates = [base.shifted(sets[_label(library[n], v)], nominal) for n, v in additions]
+        return point_closures(estimates, reference)
+
+    floor = max(float(divergence_closure(
+        nominal_scores(reference), {r: null.scores_oof[r][0] for r in reference.rungs},
+        reference)), 0.0)  # fmt: skip
+    return fit_jointly(
+        _joint_pool(plan, results, reference, budget), evaluate, screen=screen,
+        top=budget.joint_top, verify=budget.joint_verify, floor=floor,
+        rounds=budget.joint_rounds,
+    )  # fmt: skip
 
 
 def _label(candidate: Candidate, value) -> str:

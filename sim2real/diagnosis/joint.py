@@ -14,6 +14,12 @@ The measure is the share of S's classifier divergence to R that a set removes, o
 scored rungs (:func:`divergence_closure`): unlike the AUC, which sits near 1 until most of
 several differences are removed, the divergence falls with each one. Nothing here builds
 sets: the caller passes ``evaluate``, which builds and scores a batch of assignments.
+
+Which candidates become factors is decided with the others in place (:func:`select`): an
+effect can remove little of the gap alone and much once another is there (shadows matter
+once the cloth hangs as R's does), so S* grows one factor at a time, each addition screened
+cheaply (``screen``: the single-candidate set's shift of every simulation added to S*'s
+features, no new simulation) and the most promising built and measured.
 """
 
 from __future__ import annotations
@@ -32,9 +38,9 @@ from .reference import Reference
 from .scoring import candidate_result
 
 __all__ = [
-    "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Value",
-    "assignment", "attribute", "calibrate", "closure_values", "divergence_closure", "fit_jointly",
-    "nominal_scores",
+    "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Screen",
+    "Value", "assignment", "attribute", "calibrate", "closure_values", "divergence_closure",
+    "fit_jointly", "nominal_scores", "point_closures", "select",
 ]  # fmt: skip
 
 
@@ -92,14 +98,23 @@ class Factor:
     """Strengths the ascent tries (a switch: ``(None,)``, on); nominal is always tried too."""
     start: object = NOMINAL
     """Where the ascent starts: the single-candidate fit, or :data:`NOMINAL`."""
+    setting: str = ""
+    """What the factor sets (e.g. ``registry.field``); two factors that set one thing are
+    never applied together. Empty: the factor's name."""
 
     def __post_init__(self):
         if not self.options:
             raise ValueError(f"factor {self.name}: needs at least one strength to try")
+        if not self.setting:
+            object.__setattr__(self, "setting", self.name)
 
 
 Evaluate = Callable[[Sequence[Assignment]], list[Value]]
 """Builds (or finds cached) and scores a batch of assignments, in order."""
+
+Screen = Callable[[Assignment, Sequence[tuple[str, object]]], list[float]]
+"""Estimates, building nothing, the closure of an assignment already evaluated with one more
+factor at one strength, for each ``(factor, strength)`` in order."""
 
 
 def _divergence(scores: np.ndarray, labels: np.ndarray, weights: np.ndarray | None):
@@ -144,6 +159,26 @@ def nominal_scores(reference: Reference) -> dict[str, np.ndarray]:
     return {rung: scored.scores_oof[rung][0] for rung in reference.rungs}
 
 
+def _set_scores(sets: Sequence[LadderFeatures], reference: Reference):
+    """S's and each set's out-of-fold scores against R per scored rung (one classifier fit)."""
+    sim = reference.nominal
+    for features in sets:
+        if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
+            raise ValueError("closure_values: every set must hold S's simulations, in S's order")
+    scored = candidate_result("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets], sim,
+                              reference.real, reference.gaps, reference.rungs,
+                              reference.before)  # fmt: skip
+    nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
+    own = [{rung: oof[i + 1] for rung, oof in scored.scores_oof.items()} for i in range(len(sets))]
+    return nominal, own
+
+
+def point_closures(sets: Sequence[LadderFeatures], reference: Reference) -> list[float]:
+    """The :func:`divergence_closure` of each set, without intervals (for screening)."""
+    nominal, own = _set_scores(sets, reference)
+    return [float(divergence_closure(nominal, scores, reference)) for scores in own]
+
+
 def closure_values(
     sets: Sequence[LadderFeatures], reference: Reference, *, n_boot: int, seed: int
 ) -> list[Value]:
@@ -155,25 +190,18 @@ def closure_values(
     replicate.
     """
     sim, real = reference.nominal, reference.real
-    for features in sets:
-        if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
-            raise ValueError("closure_values: every set must hold S's simulations, in S's order")
-    scored = candidate_result("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets], sim,
-                              real, reference.gaps, reference.rungs,
-                              reference.before)  # fmt: skip
+    nominal, own = _set_scores(sets, reference)
     rng = np.random.default_rng([seed, 64])
     codes_x = np.unique(sim.groups, return_inverse=True)[1].reshape(-1)
     codes_y = np.unique(real.groups, return_inverse=True)[1].reshape(-1)
     draws_x = bootstrap_draws(int(codes_x.max()) + 1, n_boot, rng)
     draws_y = bootstrap_draws(int(codes_y.max()) + 1, n_boot, rng)
     weights = np.concatenate([draws_x[codes_x], draws_y[codes_y]]).astype(np.float64)
-    nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
-    values = []
-    for i in range(len(sets)):
-        own = {rung: oof[i + 1] for rung, oof in scored.scores_oof.items()}
-        values.append(Value(float(divergence_closure(nominal, own, reference)),
-                            divergence_closure(nominal, own, reference, weights)))  # fmt: skip
-    return values
+    return [
+        Value(float(divergence_closure(nominal, scores, reference)),
+              divergence_closure(nominal, scores, reference, weights))
+        for scores in own
+    ]  # fmt: skip
 
 
 def _nominal(count: int) -> Value:
@@ -227,6 +255,86 @@ def calibrate(
     return assignment(current), value, path
 
 
+def select(
+    factors: Sequence[Factor],
+    evaluate: Evaluate,
+    screen: Screen,
+    *,
+    top: int,
+    verify: int,
+    gain: float = MATTERS,
+    floor: float = 0.0,
+) -> tuple[list[Factor], Assignment, Value, list[dict]]:
+    """Greedy forward selection of the factors of S*, each chosen with the others in place.
+
+    A step screens every open factor (none that shares a setting with a chosen one) at each
+    of its strengths on top of the current assignment, measures ``verify`` of them at their
+    best screened strengths, the best of each stage first (:func:`_round_robin`), and adds
+    the one measured best when it closes at least ``gain`` more of the gap, its
+    group-bootstrap interval of the gain is above 0 and the closure beats ``floor`` (what S'
+    closes by chance). Stops after ``top`` factors or a
+    step without an addition.
+
+    Returns:
+        The chosen factors (in the order added, each starting at its chosen strength), their
+        assignment, its value, and the path (one entry per step).
+    """
+    by_name = {f.name: f for f in factors}
+    if len(by_name) != len(factors):
+        raise ValueError(f"factors must have distinct names, got {[f.name for f in factors]}")
+    current: dict[str, object] = {}
+    (value,) = evaluate([()])
+    path = []
+    while len(current) < top:
+        used = {by_name[n].setting for n in current}
+        open_ = [f for f in factors if f.name not in current and f.setting not in used]
+        additions = [(f.name, s) for f in open_ for s in f.options]
+        if not additions:
+            break
+        estimates = screen(assignment(current), additions)
+        best: dict[str, tuple[float, object]] = {}
+        for (name, strength), estimate in zip(additions, estimates, strict=True):
+            if name not in best or estimate > best[name][0]:
+                best[name] = (float(estimate), strength)
+        shortlist = _round_robin(best, {f.name: f.stage for f in open_}, verify)
+        trials = [assignment({**current, n: best[n][1]}) for n in shortlist]
+        values = evaluate(trials)
+        k = int(np.argmax([v.closure for v in values]))
+        chosen, measured = shortlist[k], values[k]
+        low, _ = _interval(measured.replicates - value.replicates)
+        added = (measured.closure - value.closure >= gain and low > 0
+                 and measured.closure > floor)  # fmt: skip
+        path.append({
+            "step": len(current) + 1,
+            "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
+            "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
+            "added": chosen if added else None,
+        })  # fmt: skip
+        if not added:
+            break
+        current[chosen] = best[chosen][1]
+        value = measured
+    chosen_factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
+    return chosen_factors, assignment(current), value, path
+
+
+def _round_robin(estimates: dict[str, tuple[float, object]], stages: dict[str, str],
+                 count: int) -> list[str]:  # fmt: skip
+    """``count`` factors: each stage's best screened, then each stage's second, and so on.
+
+    The screen adds features linearly, so it misjudges an effect whose change depends on
+    another already in S* (a pose seen through defocus blur), most often across stages; a
+    shortlist that spans the stages keeps such an effect in reach.
+    """
+    ranked = sorted(estimates, key=lambda n: -estimates[n][0])
+    seen: dict[str, int] = {}
+    place = {}
+    for name in ranked:
+        place[name] = seen.get(stages[name], 0)
+        seen[stages[name]] = place[name] + 1
+    return sorted(ranked, key=lambda n: (place[n], -estimates[n][0]))[:count]
+
+
 def _interval(replicates: np.ndarray) -> tuple[float, float]:
     finite = replicates[np.isfinite(replicates)]
     if finite.size == 0:
@@ -255,7 +363,7 @@ class JointFit:
     to :attr:`closure`."""
     shapley_interval: dict[str, tuple[float, float]]
     path: list[dict]
-    """The ascent's steps (:func:`calibrate`)."""
+    """The selection's steps (:func:`select`), then the ascent's (:func:`calibrate`)."""
     sets: int
     """Distinct assignments scored."""
 
@@ -363,12 +471,18 @@ def fit_jointly(
     factors: Sequence[Factor],
     evaluate: Evaluate,
     *,
+    screen: Screen | None = None,
+    top: int = 0,
+    verify: int = 4,
+    floor: float = 0.0,
     rounds: int = 2,
     tolerance: float = JOINT_TOLERANCE,
     matters: float = MATTERS,
 ) -> JointFit:
-    """:func:`calibrate`, then :func:`attribute` at the calibrated point.
+    """:func:`select` (with ``screen``), :func:`calibrate`, then :func:`attribute` at S*.
 
+    Without ``screen`` every factor is calibrated from its start; with it ``factors`` is the
+    pool :func:`select` draws at most ``top`` factors from, and the ascent refits those.
     ``evaluate`` is wrapped in a memo, so an assignment met twice (nominal in every batch,
     S* again during attribution) is scored once.
     """
@@ -381,7 +495,11 @@ def fit_jointly(
             memo.update(zip(todo, evaluate(todo), strict=True))
         return [memo[a] for a in batch]
 
-    calibrated, value, path = calibrate(factors, cached, rounds=rounds, tolerance=tolerance)
+    path: list[dict] = []
+    if screen is not None:
+        factors, _, _, path = select(factors, cached, screen, top=top, verify=verify,
+                                     gain=matters, floor=floor)  # fmt: skip
+    calibrated, value, steps = calibrate(factors, cached, rounds=rounds, tolerance=tolerance)
     reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
         calibrated, value, cached, matters=matters
     )
@@ -389,5 +507,5 @@ def fit_jointly(
         factors={f.name: f.stage for f in factors}, strengths=dict(kept),
         closure=full.closure, closure_interval=_interval(full.replicates),
         reset=reset, reset_interval=reset_interval, shapley=shapley,
-        shapley_interval=shapley_interval, path=path, sets=len(memo),
+        shapley_interval=shapley_interval, path=path + steps, sets=len(memo),
     )  # fmt: skip

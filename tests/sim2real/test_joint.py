@@ -8,6 +8,7 @@ the diagnosis's own (grouped-CV domain classifiers, saturated rungs on the diver
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from sim2real.diagnosis.joint import (
+    NOMINAL,
     Factor,
     JointFit,
     Value,
@@ -22,6 +24,8 @@ from sim2real.diagnosis.joint import (
     calibrate,
     closure_values,
     fit_jointly,
+    point_closures,
+    select,
 )
 from sim2real.diagnosis.reference import compare_domains
 from sim2real.ladder import LadderFeatures
@@ -61,7 +65,7 @@ def scene():
         sets = [_world(0, dict(a)) for a in batch]
         return closure_values(sets, reference, n_boot=60, seed=0)
 
-    return sim, evaluate
+    return sim, evaluate, reference
 
 
 FACTORS = [
@@ -73,13 +77,13 @@ FACTORS = [
 
 
 def test_nominal_closes_nothing_in_every_replicate(scene):
-    _, evaluate = scene
+    _, evaluate, _ = scene
     (value,) = evaluate([()])
     assert value.closure == 0.0 and np.all(value.replicates == 0.0)
 
 
 def test_joint_calibration_recovers_three_planted_strengths(scene):
-    _, evaluate = scene
+    _, evaluate, _ = scene
     calibrated, value, path = calibrate(FACTORS, evaluate, rounds=3)
     assert dict(calibrated) == PLANTED  # the decoy stays nominal, shift leaves its bad start
     assert value.closure > 0.9
@@ -87,7 +91,7 @@ def test_joint_calibration_recovers_three_planted_strengths(scene):
 
 
 def test_attribution_sums_to_the_calibrated_closure(scene):
-    _, evaluate = scene
+    _, evaluate, _ = scene
     fit = fit_jointly(FACTORS, evaluate, rounds=3)
     assert fit.strengths == PLANTED
     assert sum(fit.shapley.values()) == pytest.approx(fit.closure, abs=1e-9)
@@ -106,7 +110,7 @@ def test_attribution_sums_to_the_calibrated_closure(scene):
 
 def test_one_more_effect_moves_the_divergence_while_the_auc_stays_at_one(scene):
     """Adding the planted effects one at a time closes more each time (no saturation)."""
-    _, evaluate = scene
+    _, evaluate, _ = scene
     steps = [{}, {"shift": 1.0}, {"shift": 1.0, "spread": 2.0}, PLANTED]
     closures = [v.closure for v in evaluate([assignment(s) for s in steps])]
     assert closures[0] == 0.0
@@ -136,3 +140,92 @@ def test_factors_need_distinct_names_and_a_strength():
         calibrate([Factor("a", "x", (1,)), Factor("a", "x", (2,))], lambda b: [])
     with pytest.raises(ValueError, match="at least one"):
         Factor("a", "x", ())
+
+
+def _screen(scene):
+    """The pipeline's screen on the synthetic world: S*'s rows shifted by each single set's."""
+    sim, _, reference = scene
+
+    def screen(current, additions):
+        base = _world(0, dict(current))
+        singles = [_world(0, {name: strength}) for name, strength in additions]
+        return point_closures([base.shifted(one, sim) for one in singles], reference)
+
+    return screen
+
+
+def test_shifted_features_add_an_effect_row_by_row(scene):
+    sim, _, _ = scene
+    both = _world(0, {"shift": 1.0}).shifted(_world(0, {"switch": True}), sim)
+    exact = _world(0, {"shift": 1.0, "switch": True})
+    np.testing.assert_allclose(both.rungs["pixel"], exact.rungs["pixel"])  # additive world
+    other = _world(1, {})
+    with pytest.raises(ValueError, match="same simulations"):
+        sim.shifted(other, sim)
+
+
+def test_forward_selection_chooses_the_planted_factors_and_leaves_the_decoy(scene):
+    _, evaluate, _ = scene
+    pool = [dataclasses.replace(f, start=NOMINAL) for f in FACTORS]
+    chosen, calibrated, value, path = select(pool, evaluate, _screen(scene), top=4, verify=2)
+    assert {f.name for f in chosen} == set(PLANTED)  # the decoy never helps
+    assert dict(calibrated) == PLANTED
+    assert value.closure > 0.9
+    assert [p["added"] for p in path][:3] == [f.name for f in chosen]
+    assert path[-1]["added"] is None  # it stopped because the decoy adds nothing
+    closures = [max(p["measured"].values()) for p in path[:3]]
+    assert closures == sorted(closures)
+    fit = fit_jointly(pool, evaluate, screen=_screen(scene), top=4, verify=2)
+    assert fit.strengths == PLANTED
+    assert sum(fit.shapley.values()) == pytest.approx(fit.closure, abs=1e-9)
+
+
+def test_selection_keeps_one_factor_per_setting_and_respects_top(scene):
+    _, evaluate, _ = scene
+    pool = [Factor("shift", "physics", (0.5, 1.0, 1.5)),
+            Factor("shift_too", "physics", (1.0,), setting="shift"),
+            Factor("spread", "camera", (1.0, 2.0, 3.0))]  # fmt: skip
+
+    def evaluate_alias(batch):  # shift_too applies shift: never together with it
+        for a in batch:
+            assert not {"shift", "shift_too"} <= dict(a).keys()
+        return evaluate([tuple(("shift" if n == "shift_too" else n, v) for n, v in a)
+                         for a in batch])  # fmt: skip
+
+    def screen(current, additions):
+        renamed = [("shift" if n == "shift_too" else n, v) for n, v in additions]
+        current = tuple(("shift" if n == "shift_too" else n, v) for n, v in current)
+        return _screen(scene)(current, renamed)
+
+    chosen, _, _, path = select(pool, evaluate_alias, screen, top=1, verify=3)
+    assert len(chosen) == 1 and len(path) == 1  # top
+    chosen, _, _, path = select(pool, evaluate_alias, screen, top=3, verify=3)
+    names = {f.name for f in chosen}
+    assert "spread" in names and len(names & {"shift", "shift_too"}) == 1
+    assert len(path) == 2  # nothing left to try once shift's setting is taken
+
+
+def test_nothing_is_selected_when_no_factor_closes_enough():
+    def evaluate(batch):
+        return [Value(0.01 * len(a), np.full(9, 0.01 * len(a))) for a in batch]
+
+    def screen(current, additions):
+        return [0.01 * (len(current) + 1)] * len(additions)
+
+    pool = [Factor(n, "physics", (None,)) for n in "abc"]
+    chosen, calibrated, value, path = select(pool, evaluate, screen, top=3, verify=2)
+    assert chosen == [] and calibrated == () and value.closure == 0.0
+    assert path == [{"step": 1, "screened": {"a": ["on", 0.01], "b": ["on", 0.01]},
+                     "measured": {"a": 0.01, "b": 0.01}, "added": None}]  # fmt: skip
+    fit = fit_jointly(pool, evaluate, screen=screen, top=3)
+    assert fit.strengths == {} and fit.closure == 0.0 and "unexplained" in fit.sentence()
+
+
+def test_the_shortlist_spans_the_stages():
+    from sim2real.diagnosis.joint import _round_robin
+
+    estimates = {"a1": (0.9, 1), "a2": (0.8, 1), "a3": (0.7, 1), "b1": (0.3, 1), "c1": (0.1, 1)}
+    stages = {"a1": "physics", "a2": "physics", "a3": "physics", "b1": "scene", "c1": "camera"}
+    assert _round_robin(estimates, stages, 3) == ["a1", "b1", "c1"]
+    assert _round_robin(estimates, stages, 4) == ["a1", "b1", "c1", "a2"]
+    assert _round_robin(estimates, stages, 9) == ["a1", "b1", "c1", "a2", "a3"]
