@@ -8,15 +8,18 @@ the factors that matter, each with its share of the gap. Scored against the answ
   at the truth gives back at least :data:`~sim2real.diagnosis.joint.MATTERS` of the gap; an
   effect that moves nothing cannot be found);
 * how much: the stage shares of the gap against the truth's, in points. The truth's shares
-  are measured after the answer is opened: the withheld effects at their sealed strengths are
-  built and attributed exactly as the diagnosis attributes its own fit (reset and exact
-  Shapley values, :func:`truth_attribution`);
+  are measured after the answer is opened: the withheld effects, their strengths refitted
+  from the sealed ones (the seal's image effects are second implementations on their own
+  scales), are built and attributed exactly as the diagnosis attributes its own fit (reset
+  and exact Shapley values, :func:`truth_attribution`);
 * an effect-free twin counts as a false attribution when any factor or effect is named.
 """
 
 from __future__ import annotations
 
-from ..diagnosis.joint import MATTERS, assignment, attribute
+import numpy as np
+
+from ..diagnosis.joint import MATTERS, Factor, assignment, attribute, calibrate
 from ..reopen import reopen
 from ..result import Diagnosis
 
@@ -44,28 +47,60 @@ def predicted_stage_shares(result: Diagnosis) -> dict[str, float]:
     return {top["stage"]: float(top["best_score"])}
 
 
-def truth_attribution(result: Diagnosis, answer: dict, *, n_jobs: int = 1) -> dict | None:
-    """The withheld library effects at their sealed strengths, attributed against R.
+def _truth_factors(result: Diagnosis, answer: dict, spread: int) -> list[Factor]:
+    """The withheld library effects as factors starting at their sealed strengths.
 
-    ``None`` when the set has none or the diagnosis found no gap to score against.
+    Each also tries up to ``spread`` of the strengths the diagnosis scored it at: the seal
+    applies image effects through second implementations whose strength scales differ from
+    the candidates' (a sealed defocus radius is not the candidate's), so the truth is
+    attributed at the strengths that reproduce it best with the library.
     """
-    effects = {e["name"]: e["strength"] for e in answer["effects"] if e["library"]}
-    if not effects or not result.scored_rungs:
+    factors = []
+    for effect in answer["effects"]:
+        if not effect["library"]:
+            continue
+        name, sealed = effect["name"], effect["strength"]
+        scored = list(result.candidates.get(name, {}).get("strengths", []))
+        if sealed is None or isinstance(sealed, str) or not scored:
+            options = (sealed,)
+        else:
+            picked = {scored[round(v)] for v in np.linspace(0, len(scored) - 1,
+                                                              min(spread, len(scored)))}
+            options = tuple(sorted(picked | {sealed}))
+        factors.append(Factor(name, effect["stage"], options, start=sealed))
+    return factors
+
+
+def truth_attribution(result: Diagnosis, answer: dict, *, n_jobs: int = 1) -> dict | None:
+    """The withheld library effects, refitted from their sealed strengths, attributed against R.
+
+    The strengths are refitted by one round of the joint fit's coordinate ascent
+    (:func:`_truth_factors`), then attributed exactly as the diagnosis attributes its own
+    fit. ``None`` when the set has none or the diagnosis found no gap to score against.
+    """
+    factors = _truth_factors(result, answer, result.inputs.budget_settings["joint_strengths"])
+    if not factors or not result.scored_rungs:
         return None
     reopened = reopen(result)
+    memo: dict = {}
 
     def evaluate(batch):
-        return reopened.values(batch, n_jobs=n_jobs)
+        todo = [a for a in dict.fromkeys(batch) if a not in memo]
+        if todo:
+            memo.update(zip(todo, reopened.values(todo, n_jobs=n_jobs), strict=True))
+        return [memo[a] for a in batch]
 
-    truth = assignment(effects)
-    (value,) = evaluate([truth])
+    sealed = assignment({f.name: f.start for f in factors})
+    (at_sealed,) = evaluate([sealed])
+    truth, value, _ = calibrate(factors, evaluate, rounds=1)
     reset, _, shapley, _, kept, full = attribute(truth, value, evaluate, matters=MATTERS)
-    stages = {e["name"]: e["stage"] for e in answer["effects"]}
+    stages = {f.name: f.stage for f in factors}
     shares: dict[str, float] = {}
     for name, share in shapley.items():
         shares[stages[name]] = shares.get(stages[name], 0.0) + share
     return {
-        "closure": value.closure, "reset": reset, "shapley": shapley,
+        "closure": value.closure, "closure_at_sealed": at_sealed.closure,
+        "strengths": dict(truth), "reset": reset, "shapley": shapley,
         "matter": sorted(n for n, _ in kept), "stage_shares": shares,
         "closure_of_those_that_matter": full.closure,
     }  # fmt: skip

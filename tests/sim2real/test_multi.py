@@ -108,3 +108,22 @@ def test_the_closed_loop_retrains_with_every_factor_of_the_calibrated_simulator(
     with pytest.raises(ValueError, match="named no effect"):
         chosen_effects(_diagnosis(None))
     assert chosen_effects(_diagnosis(joint), "scene.size=0.5") == [("scene.size", 0.5)]
+
+
+def test_the_truth_is_refitted_from_its_sealed_strengths_over_the_scored_grid():
+    from sim2real.study.multi import _truth_factors
+
+    result = as_diagnosis({"candidates": {
+        "visual.defocus_blur": {"stage": "camera", "strengths": [0.75, 1.5, 2.25, 3.0]},
+        "scene.pose": {"stage": "scene", "strengths": ["edge"]},
+    }})  # fmt: skip
+    answer = {"kind": "multi", "effects": [
+        {"name": "visual.defocus_blur", "stage": "camera", "strength": 2.018, "library": True},
+        {"name": "scene.pose", "stage": "scene", "strength": "edge", "library": True},
+        {"name": "visual.shadows", "stage": "appearance", "strength": None, "library": True},
+        {"name": "a new effect", "stage": "physics", "strength": 1.0, "library": False},
+    ]}  # fmt: skip
+    defocus, pose, shadows = _truth_factors(result, answer, spread=3)
+    assert defocus.start == 2.018 and defocus.options == (0.75, 2.018, 2.25, 3.0)
+    assert pose.options == ("edge",) and pose.start == "edge"
+    assert shadows.options == (None,) and shadows.start is None  # a switch: on

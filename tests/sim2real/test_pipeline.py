@@ -559,5 +559,8 @@ def test_a_stored_diagnosis_reopens_and_scores_as_it_did(world, tmp_path):
     answer = json.loads(Path(world["answer"]).read_text())
     truth = truth_attribution(stored, answer)
     assert truth["matter"] == ["visual.sensor_noise"] and truth["closure"] > 0.5
+    # refitted from the sealed strength: never worse than the sealed strength itself
+    assert truth["closure"] >= truth["closure_at_sealed"]
+    assert set(truth["strengths"]) <= {"visual.sensor_noise"}
     assert truth["shapley"]["visual.sensor_noise"] == pytest.approx(truth["closure"])
     assert truth["stage_shares"] == {"camera": pytest.approx(truth["closure"])}
