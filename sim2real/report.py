@@ -356,8 +356,8 @@ def _joint_lines(joint: JointFit | None) -> list[str]:
     ]  # fmt: skip
     shares = ", ".join(f"{stage} {100 * v:.0f} %" for stage, v in joint.stage_shares().items())
     return [
-        "All factors together: the candidates that close part of the gap, calibrated jointly "
-        "(coordinate ascent, each strength refitted with the others in place), close "
+        "All factors together: the factors, chosen one at a time with the others in place "
+        "and calibrated jointly (coordinate ascent, each strength refitted), close "
         f"{100 * joint.closure:.0f} % {_percent_ci(joint.closure_interval)} of it; by stage: "
         f"{shares or 'none'}, unexplained {100 * joint.unexplained:.0f} %. Share: the exact "
         "Shapley value over the factors that matter (they add up to the joint closure); "
@@ -365,6 +365,26 @@ def _joint_lines(joint: JointFit | None) -> list[str]:
         f"group bootstrap. {joint.sets} sets scored.",
         "",
         markdown_table(_JOINT_HEADER, rows),
+        "",
+        *_selection_lines(joint.path),
+    ]
+
+
+def _selection_lines(path: list[dict]) -> list[str]:
+    """How S* was chosen: each step's addition and the closures it was measured against."""
+    rows = []
+    for step in (s for s in path if "step" in s):
+        measured = sorted(step["measured"].items(), key=lambda kv: -kv[1])
+        tried = ", ".join(f"{n} {100 * v:.0f} %" for n, v in measured)
+        rows.append([str(step["step"]), step["added"] or "none (stop)", tried])
+    if not rows:
+        return []
+    return [
+        "How the factors were chosen: at each step every candidate was screened on top of the "
+        "factors already chosen, and these were built and measured (closure with the "
+        "addition); the best was added when it closed at least 5 % more.",
+        "",
+        markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",
     ]
 

@@ -27,3 +27,20 @@ def test_the_page_escapes_text_and_shows_tables_as_html():
     assert "<th>factor</th>" in page and "<td>60 %</td>" in page
     assert '<p class="answer">Answer &amp; more.</p>' in page
     assert str(table).startswith("| factor | share |")  # the Markdown text is unchanged
+
+
+def test_the_report_says_how_the_factors_were_chosen():
+    from sim2real.report import _selection_lines
+
+    path = [
+        {"step": 1, "added": "visual.defocus_blur", "screened": {},
+         "measured": {"scene.pose": 0.09, "visual.defocus_blur": 0.46}},
+        {"step": 2, "added": None, "screened": {}, "measured": {"scene.pose": 0.47}},
+        {"round": 1, "factor": "visual.defocus_blur", "tried": [], "closure": [], "kept": 3.0},
+    ]  # fmt: skip
+    lines = _selection_lines(path)
+    table = next(line for line in lines if str(line).startswith("| step"))
+    rows = str(table).splitlines()[2:]
+    assert rows == ["| 1 | visual.defocus_blur | visual.defocus_blur 46 %, scene.pose 9 % |",
+                    "| 2 | none (stop) | scene.pose 47 % |"]  # fmt: skip
+    assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show
