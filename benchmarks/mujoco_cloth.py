@@ -28,41 +28,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import statistics
 import time
 from typing import Any
 
+from sim2real.study.mujoco_flex import AIR_DENSITY_KG_M3, AIR_VISCOSITY_PA_S, elastic_params
+
 _DEFAULT_INTEGRATOR = "discrete"
 # Tried in order if the installed MuJoCo rejects the preferred integrator for 2D flex elasticity.
 _INTEGRATOR_FALLBACKS = ("discrete", "implicitfast", "implicit")
-_AIR_DENSITY_KG_M3 = 1.2
-_AIR_VISCOSITY_PA_S = 1.8e-5
-_STRETCH_ONLY_THICKNESS_M = 1e-3
-
-
-def _elastic_params(
-    stretch_stiffness_n_per_m: float, poisson: float, bend_stiffness_nm: float
-) -> tuple[float, float, str]:
-    """Return ``(young_pa, thickness_m, elastic2d)`` matching the membrane and bending stiffness."""
-    if stretch_stiffness_n_per_m <= 0.0:
-        raise ValueError("stretch_stiffness_n_per_m must be positive")
-    if not 0.0 <= poisson < 0.5:
-        raise ValueError("poisson must lie in [0, 0.5)")
-    if bend_stiffness_nm < 0.0:
-        raise ValueError("bend_stiffness_nm must be non-negative")
-    if bend_stiffness_nm > 0.0:
-        # E t = k_s and E t^3 / (12 (1 - nu^2)) = D  =>  t^2 = 12 (1 - nu^2) D / k_s.
-        thickness = math.sqrt(
-            12.0 * (1.0 - poisson**2) * bend_stiffness_nm / stretch_stiffness_n_per_m
-        )
-        mode = "both"
-    else:
-        # MuJoCo 4.0.0 compiles "stretch" with a spurious warning ("not rigid and has no ... passive
-        # forces", also appended to MUJOCO_LOG.TXT in the cwd) although the membrane force works.
-        thickness = _STRETCH_ONLY_THICKNESS_M
-        mode = "stretch"
-    return stretch_stiffness_n_per_m / thickness, thickness, mode
 
 
 def build_mujoco_cloth_xml(
@@ -105,7 +79,7 @@ def build_mujoco_cloth_xml(
         raise ValueError("vert_per_side must be at least 2")
     if size_m <= 0.0 or density_kg_m2 <= 0.0 or dt_s <= 0.0:
         raise ValueError("size_m, density_kg_m2 and dt_s must be positive")
-    young, thickness, elastic2d = _elastic_params(
+    young, thickness, elastic2d = elastic_params(
         stretch_stiffness_n_per_m, poisson, bend_stiffness_nm
     )
     n = vert_per_side
@@ -119,8 +93,8 @@ def build_mujoco_cloth_xml(
     radius = min(1e-3, 0.1 * spacing)
     return f"""<mujoco model="mujoco_cloth_benchmark">
   <option timestep="{dt_s!r}" integrator="{integrator}" solver="Newton" gravity="0 0 -9.81"
-          wind="0 {wind_speed_m_s!r} 0" density="{_AIR_DENSITY_KG_M3!r}"
-          viscosity="{_AIR_VISCOSITY_PA_S!r}"/>
+          wind="0 {wind_speed_m_s!r} 0" density="{AIR_DENSITY_KG_M3!r}"
+          viscosity="{AIR_VISCOSITY_PA_S!r}"/>
   <worldbody>
     <flexcomp name="cloth" type="grid" dim="2" count="{n} {n} 1"
               spacing="{spacing!r} {spacing!r} {spacing!r}" pos="0 0 {centre_z!r}" euler="90 0 0"
@@ -181,7 +155,7 @@ def run_mujoco_cloth(*, duration_s: float = 2.0, repeats: int = 3, **scene_kwarg
     n = int(kwargs.get("vert_per_side", 32))
     size_m = float(kwargs.get("size_m", 0.5))
     dt_s = float(kwargs.get("dt_s", 0.005))
-    young, thickness, elastic2d = _elastic_params(
+    young, thickness, elastic2d = elastic_params(
         float(kwargs.get("stretch_stiffness_n_per_m", 100.0)),
         float(kwargs.get("poisson", 0.3)),
         float(kwargs.get("bend_stiffness_nm", 1e-5)),

@@ -29,7 +29,7 @@ from the seed and its index alone, so ``--fabrics 3`` gives the first three of `
 Differences from our wind scene (:class:`simulator.cloth.scenes.ScenarioWind`, the sealed
 sets' renderer), all on purpose:
 
-- **Engine and material law.** MuJoCo's 2D flex (``benchmarks.mujoco_cloth``'s mapping): an
+- **Engine and material law.** MuJoCo's 2D flex (:mod:`sim2real.study.mujoco_flex`'s mapping): an
   isotropic Saint Venant-Kirchhoff membrane with ``E t`` = stretch stiffness and Poisson 0.3,
   and hinge bending ``D = E t^3 / (12 (1 - nu^2))`` = bend stiffness, stepped by MuJoCo's
   ``discrete`` integrator. Ours: Wang et al.'s anisotropic, strain-stiffening membrane and
@@ -94,12 +94,13 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.mujoco_cloth import _AIR_DENSITY_KG_M3, _AIR_VISCOSITY_PA_S, _elastic_params
 from common.checks import check_choice, check_float, check_int
 from common.commands import report_user_errors
 from common.errors import InputError
 from common.files import atomic_write_bytes, staged_folder
 from common.paths import check_output_dir
+
+from .mujoco_flex import AIR_DENSITY_KG_M3, AIR_VISCOSITY_PA_S, elastic_params
 
 __all__ = [
     "CODECS",
@@ -376,7 +377,7 @@ def scene_mjcf(
     scene: EngineScene, fabric: EngineFabric, look: FabricLook | None = None, size: int = 112
 ) -> str:
     """MJCF of one fabric's scene: the flex cloth, its fan (via ``opt.wind``), floor and sky."""
-    young, thickness, elastic2d = _elastic_params(
+    young, thickness, elastic2d = elastic_params(
         fabric.stretch_stiffness, scene.poisson, fabric.bend_stiffness
     )
     n = scene.vert_per_side
@@ -426,8 +427,8 @@ def scene_mjcf(
   <compiler usethread="false"/>
   <statistic extent="2" center="0 0 0.8"/>
   <option timestep="{scene.max_dt!r}" integrator="discrete" solver="Newton"
-          gravity="0 0 -9.81" wind="0 0 0" density="{_AIR_DENSITY_KG_M3!r}"
-          viscosity="{_AIR_VISCOSITY_PA_S!r}"/>{visual}
+          gravity="0 0 -9.81" wind="0 0 0" density="{AIR_DENSITY_KG_M3!r}"
+          viscosity="{AIR_VISCOSITY_PA_S!r}"/>{visual}
   <worldbody>{world}
     <flexcomp name="cloth" type="grid" dim="2" count="{n} {n} 1"
               spacing="{spacing!r} {spacing!r} {spacing!r}" pos="0 0 {centre_z!r}"
@@ -742,7 +743,7 @@ def _differences(scene: EngineScene, codec: dict, fps: float) -> dict:
                     "measured direction/curvature-dependent dihedral bending",
             "here": "isotropic Saint Venant-Kirchhoff shell (elastic2d='both'): E t = "
                     f"stretch_stiffness, Poisson {scene.poisson}, hinge bending D = E t^3 / "
-                    "(12 (1 - nu^2)) = bend_stiffness (benchmarks.mujoco_cloth mapping)",
+                    "(12 (1 - nu^2)) = bend_stiffness (sim2real.study.mujoco_flex mapping)",
         },
         "wind_model": {
             "ours": "normal pressure drag (C_d 1) of each vertex's area-weighted normal "
