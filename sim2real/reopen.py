@@ -22,7 +22,7 @@ from datasets.spec import DatasetSpec
 from .candidates import Candidate, candidate_library
 from .diagnosis.joint import Assignment, Value, closure_values
 from .diagnosis.reference import Reference, compare_domains
-from .diagnosis.scoring import candidate_result
+from .diagnosis.scoring import candidate_result, oof_auc, oof_divergence
 from .domains import real_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import (
@@ -75,8 +75,6 @@ class Reopened:
 
     def classifier(self, batch: Sequence[Assignment], *, n_jobs: int = 1) -> list[dict]:
         """Per assignment and scored rung: the domain classifier's AUC and divergence to R."""
-        from .diagnosis.scoring import _auc, _divergence
-
         sets = self.features(batch, n_jobs=n_jobs)
         ref = self.reference
         scored = candidate_result("any", "any", (None,) * len(sets), sets, ref.nominal, ref.real,
@@ -84,8 +82,8 @@ class Reopened:
         return [
             {
                 rung: {
-                    "auc": _auc(scored.scores_oof[rung][i], len(sets[i])),
-                    "divergence": _divergence(scored.scores_oof[rung][i], len(sets[i])),
+                    "auc": oof_auc(scored.scores_oof[rung][i], len(sets[i])),
+                    "divergence": oof_divergence(scored.scores_oof[rung][i], len(sets[i])),
                 }
                 for rung in ref.rungs
             }

@@ -32,10 +32,10 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from ..ladder import LadderFeatures
-from ..stats import CI_LEVEL, bootstrap_draws, classifier_divergence
+from ..stats import CI_LEVEL, bootstrap_draws
 from .coalitions import shapley_values
 from .reference import Reference
-from .scoring import candidate_result
+from .scoring import candidate_result, oof_divergence
 
 __all__ = [
     "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Screen",
@@ -117,13 +117,6 @@ Screen = Callable[[Assignment, Sequence[tuple[str, object]]], list[float]]
 factor at one strength, for each ``(factor, strength)`` in order."""
 
 
-def _divergence(scores: np.ndarray, labels: np.ndarray, weights: np.ndarray | None):
-    """The classifier divergence averaged over the CV repeats (per replicate with weights)."""
-    if weights is None:
-        return float(np.mean([classifier_divergence(row, labels) for row in scores]))
-    return np.mean([classifier_divergence(row, labels, weights) for row in scores], axis=0)
-
-
 def divergence_closure(
     nominal_oof: dict[str, np.ndarray],
     set_oof: dict[str, np.ndarray],
@@ -140,12 +133,11 @@ def divergence_closure(
     bootstrap replicate.
     """
     n = len(reference.nominal)
-    labels = np.r_[np.zeros(n), np.ones(len(reference.real))]
     rung_weights = reference.before.weights(reference.gaps, reference.rungs)
     total = 0.0 if weights is None else np.zeros(weights.shape[1])
     for r, rung in enumerate(reference.rungs):
-        before = _divergence(nominal_oof[rung], labels, weights)
-        after = _divergence(set_oof[rung], labels, weights)
+        before = oof_divergence(nominal_oof[rung], n, weights)
+        after = oof_divergence(set_oof[rung], n, weights)
         closed = np.clip((before - after) / np.maximum(before, 1e-3), -1.0, 1.0)
         total = total + rung_weights[r] * np.nan_to_num(closed, nan=0.0)
     return total

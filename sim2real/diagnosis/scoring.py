@@ -28,6 +28,8 @@ __all__ = [
     "CandidateResult",
     "ReferenceScores",
     "candidate_result",
+    "oof_auc",
+    "oof_divergence",
     "reference_scores",
     "score_reference",
 ]
@@ -212,18 +214,25 @@ def _oof(sim: LadderFeatures, features: LadderFeatures, real: LadderFeatures, ru
     ])  # fmt: skip
 
 
-def _over_repeats(measure, scores: np.ndarray, n: int) -> float:
-    """``measure(row, labels)`` averaged over the repeats of out-of-fold scores (first n: S)."""
-    labels = np.r_[np.zeros(n), np.ones(scores.shape[1] - n)]
-    return float(np.mean([measure(row, labels) for row in scores]))
+def _labels(scores: np.ndarray, n: int) -> np.ndarray:
+    return np.r_[np.zeros(n), np.ones(scores.shape[1] - n)]
 
 
-def _auc(scores: np.ndarray, n: int) -> float:
-    return _over_repeats(auc_score, scores, n)
+def oof_auc(scores: np.ndarray, n: int) -> float:
+    """The domain classifier's AUC over its CV repeats' out-of-fold scores (first n: S)."""
+    labels = _labels(scores, n)
+    return float(np.mean([auc_score(row, labels) for row in scores]))
 
 
-def _divergence(scores: np.ndarray, n: int) -> float:
-    return _over_repeats(classifier_divergence, scores, n)
+def oof_divergence(scores: np.ndarray, n: int, weights: np.ndarray | None = None):
+    """The classifier divergence over the CV repeats' out-of-fold scores (first n: S).
+
+    With row weights (n + m, B): one value per bootstrap replicate, shape (B,).
+    """
+    labels = _labels(scores, n)
+    if weights is None:
+        return float(np.mean([classifier_divergence(row, labels) for row in scores]))
+    return np.mean([classifier_divergence(row, labels, weights) for row in scores], axis=0)
 
 
 SATURATED_AUC = 0.99
@@ -255,8 +264,8 @@ class ReferenceScores:
         the value of sets the classifier cannot tell apart.
         """
         if self.saturated(rung):
-            return gap_closed(self.divergence[rung], _divergence(scores, n), 0.0)
-        return gap_closed(self.auc[rung], _auc(scores, n), _auc_floor(gap))
+            return gap_closed(self.divergence[rung], oof_divergence(scores, n), 0.0)
+        return gap_closed(self.auc[rung], oof_auc(scores, n), _auc_floor(gap))
 
     def weight(self, rung: str, gap: Gap) -> float:
         """How much classifier gap ``rung`` carries (:data:`GAP_WEIGHTED`).
@@ -288,8 +297,8 @@ def reference_scores(
     """AUC and divergence of S vs R per scored rung, measured as every candidate's (``_oof``)."""
     oof = {r: _oof(sim, sim, real, r) for r in rungs}
     return ReferenceScores(
-        auc={r: _auc(scores, len(sim)) for r, scores in oof.items()},
-        divergence={r: _divergence(scores, len(sim)) for r, scores in oof.items()},
+        auc={r: oof_auc(scores, len(sim)) for r, scores in oof.items()},
+        divergence={r: oof_divergence(scores, len(sim)) for r, scores in oof.items()},
     )
 
 
