@@ -673,16 +673,12 @@ def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, flo
     first) when it holds the top candidate, reaches the open-set threshold, its kernel
     closure confirms it (:func:`sim2real.diagnosis.agrees`), and every member adds to it:
     the coalition closes more than it does without that member (``alone``: each candidate's
-    own closure). Without the last condition a look-alike rides along: on round 2's rolling
-    shutter (set 8026) frame rate + lighting variation closed 75 % of the classifier gap, and
-    adding the look-alike motion blur, the top candidate, lowered it to 73 %, yet the three
-    together passed both thresholds.
+    own closure). Without the last condition a look-alike that lowers the closure rides along.
 
     The coalition must clear the threshold by :data:`~sim2real.diagnosis.OPEN_SET_MARGIN`,
     the margin a single candidate keeps over a fresh nominal draw: its members' strengths
-    are all fitted and it is the best of several coalitions, so it closes more by chance.
-    Over blind rounds 1-3 the one coalition that named a true pair closed 95 % (7023); the
-    look-alike coalitions that passed the other conditions closed 51 and 56 % (9026, 9027).
+    are all fitted and it is the best of several coalitions, so it closes more by chance
+    (decision record: docs/design/sim2real-coalitions.md).
     """
     if (ranking["explained"] or not shapley or ranking["top"] is None
             or ranking.get("neutral_in_interval")):  # fmt: skip
@@ -897,9 +893,9 @@ def _check_fits(plan: list[tuple], results: list, mode: str) -> list[tuple]:
     """The plan with each top candidate's fitted strength added to its grid, to be measured.
 
     The score of a strength between grid points is not interpolated: the closure can be
-    steep (sensor noise 4.0 closed 3 % of a pixel gap that its fitted 3.0 closed fully on a
-    validation set), so the fitted strength is built and scored like the others. A fit
-    within 1 % of a strength already tried adds nothing. ``mode`` as in :func:`_grow_top`.
+    steep, so the fitted strength is built and scored like the others (decision record:
+    docs/design/sim2real-strength-fit.md). A fit within 1 % of a strength already tried adds
+    nothing. ``mode`` as in :func:`_grow_top`.
     """
 
     def fitted(candidate, values, result):
