@@ -8,8 +8,8 @@ classifier p-values), as if S_e were the real set. A strength this test does not
 hard to tell from the nominal simulation, so "no gap" does not rule it out.
 
 It is conservative as an estimate of what the diagnosis sees: the gap test itself compares the
-real set with S and S' pooled, more rows on both sides (in blind round 7, 5 of the 9 withheld
-effects not picked up here still left a gap), though real footage also has nuisances S' lacks.
+real set with S and S' pooled, more rows on both sides, though real footage also has nuisances
+S' lacks (decision record: docs/design/sim2real-detectability.md).
 
 A candidate set whose features equal S's on every rung is *inert*: S_e shares S's simulation
 seeds and render draws, so an effect that changes nothing leaves every feature bit for bit

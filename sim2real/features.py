@@ -495,13 +495,10 @@ def motion_features(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
       difference of the normalised intensity over the mean squared first difference, and
       ``tpsd_log_*``, logs of that third's relative temporal band powers. Anything that
       acts on time row by row (a rolling shutter's readout) shows in the difference; a
-      frame-rate change or motion blur treats every row alike. Blind round 11 (set 18027)
-      named a frame-rate ratio of 1.03 for a rolling shutter, because a row-blind ladder
-      could not tell the two apart. That rolling shutter, like rounds 12-15's, was an
-      image-space stand-in that blended each row with the next frame; since round 16 each
-      band of rows is rendered at its time (now the library's ``visual.rolling_shutter``),
-      which shifts a row's series in time without changing its spectrum: it shows as a skew
-      of the motion.
+      frame-rate change or motion blur treats every row alike, so a row-blind ladder cannot
+      tell them apart. The library's ``visual.rolling_shutter`` renders each band of rows
+      at its time, which shifts a row's series in time without changing its spectrum: it
+      shows as a skew of the motion (decision record: docs/design/sim2real-row-aware-features.md).
 
     Args:
         clip: Frames, uint8 RGB, shape (K, H, W, 3), K >= 3 (flow needs two frame pairs for

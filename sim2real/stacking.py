@@ -3,8 +3,8 @@
 Candidates are fitted one at a time, and a coalition (:func:`sim2real.pipeline._coalition_plan`)
 joins each member at its own fitted strength, so a pair whose second effect alone widens the
 gap joins no coalition: motion blur added to S, whose camera does not shake, moves it away
-from an R filmed with camera shake and motion blur (blind round 8's 14021: shake led with
-42 %, blur ranked 17th; round 4's 10021, shadows + motion blur, likewise). Here, when the
+from an R filmed with camera shake and motion blur (decision record:
+docs/design/sim2real-stacked-fit.md). Here, when the
 leader closes part of the gap but not enough, it is held at its fitted strength and every
 candidate that only re-renders (no simulation) is fitted on top of it over its grid; the
 leader is then refitted under the best partner when it re-renders too. The pair explains
@@ -26,10 +26,8 @@ from .diagnosis import CandidateResult, explains_together
 __all__ = ["STACK_MIN_LEADER", "explained_by_stack", "stack_label", "stacked_fit"]
 
 STACK_MIN_LEADER = 0.25
-"""Least closure of the leader that starts a stacked fit (half the open-set threshold of
-rounds 1-10). Below it the leader is no part of a cause; on blind round 8 the one
-stacked-fit case (14021) had its leader at 42 %, the out-of-library sets their best
-candidates at 3-47 %."""
+"""Least closure of the leader that starts a stacked fit: below it the leader is taken to be
+no part of a cause (decision record: docs/design/sim2real-stacked-fit.md)."""
 
 
 def stack_label(first: Candidate, first_value, second: Candidate, second_value) -> str:

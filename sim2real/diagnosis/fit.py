@@ -25,12 +25,10 @@ def _resolved_interval(
     """The bootstrap interval ``(lo, hi)`` of a fit, widened to what the grid ``u`` resolves.
 
     The grid resolves no finer than half its local spacing: a parabola through three coarse
-    points can put its vertex that far off (on the development sets the bootstrap alone
-    missed a planted 0.6 shutter fitted at 0.55, [0.52, 0.58]). And where several strengths
-    tie at the best score (closures clip at 1, so a plateau is common) the data cannot order
-    them, while the fit and every bootstrap peak take the first: the interval spans the
-    plateau, half a spacing beyond each end (blind round 9: vignetting 0.17 scored 100 % at
-    0.05, 0.09 and 0.17 and was given 0.05-0.13).
+    points can put its vertex that far off. And where several strengths tie at the best
+    score (closures clip at 1, so a plateau is common) the data cannot order them, while the
+    fit and every bootstrap peak take the first: the interval spans the plateau, half a
+    spacing beyond each end (decision record: docs/design/sim2real-strength-fit.md).
     """
     step = np.diff(u)
     local = step[min(max(int(np.searchsorted(u, fitted)) - 1, 0), len(step) - 1)]

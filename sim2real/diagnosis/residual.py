@@ -41,26 +41,19 @@ def stage_of_residual(
     way R lies even when none explains it. Only where no candidate moves S that far does the
     rung pattern decide. The pattern alone misleads for motion: a different wind changes the
     cloth's shading and silhouette, so the pixel statistics differ as much as for a camera
-    effect (the out-of-library wind speeds of every blind round; docs/sim2real.md).
+    effect (decision record: docs/design/sim2real-residual-stage.md).
 
     The converse holds: where the motion differs and the pixel statistics do not, the
     appearance candidates' partial closures are not counted. The motion rung is
     appearance-free (optical flow and temporal spectra of the cloth), so a renderer change
     (lighting, texture, shading) cannot make it; what such a candidate closes then lies in the
-    network's layers alone. In blind round 12 an air damping 0.055 (19005: motion and three
-    layers differed, pixels did not) was placed in "appearance or camera" after lighting
-    variation's 49 % on enc.fc6 (physics: air damping's 30 %). Decided again over that
-    round's stored reports, this changed 19005's stage (to physics or scene) and no other.
-    Camera candidates (frame rate, motion blur, shake) do change the motion and still count.
+    network's layers alone. Camera candidates (frame rate, motion blur, shake) do change the
+    motion and still count.
 
     Where the pixel statistics differ and the motion does not, the scene candidates' partial
     closures are not counted: framing, pinning, swatch size and wind direction move the
-    cloth, and every sealed set with a scene difference in blind rounds 12 and 13 (nine) showed
-    a motion gap. In round 13 two tone curves (20000, 20002: pixel-only) were placed in
-    "physics or scene" after wind-yaw jitter's 50 % on a weak network rung. Physics
-    candidates still count: an air damping 0.10 (20005) changed the pixels and not the
-    measured motion. Decided again over rounds 12 and 13's stored reports (in-sample), the
-    rule changed those two stages (to appearance or camera) and no other; blind test: round 14.
+    cloth, so a scene difference shows a motion gap. Physics candidates still count: a
+    physics change can alter the pixels and not the measured motion.
 
     Where nothing moves S that far and both the pixel statistics and the motion differ, the
     motion's share of the gap decides (``gaps``: floor-corrected AUC per rung; without them

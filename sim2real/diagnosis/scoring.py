@@ -62,11 +62,10 @@ def score_reference(
     against S alone, whose classifier can sit at its within-domain floor on a rung where
     the pooled test sees a weak gap. There every candidate closes 0 of nothing
     (:func:`sim2real.stats.gap_closed`): the rung carries no information and only dilutes the
-    score, and when every scored rung is such a rung nothing can explain the gap (blind set
-    16014: lighting variation's gap on pixel and enc.block1, inside S's floor on both, while
-    the deeper layers showed it clearly). Such rungs are passed over: pixel or motion is
-    dropped, and the network layer becomes the first significant one where S's classifier
-    is above its floor (or saturated).
+    score, and when every scored rung is such a rung nothing can explain the gap. Such rungs
+    are passed over: pixel or motion is dropped, and the network layer becomes the first
+    significant one where S's classifier is above its floor (or saturated) (decision record:
+    docs/design/sim2real-closure-score.md).
     """
     significant = list(location["significant"])
     before = reference_scores(sim, real, significant)
@@ -239,10 +238,9 @@ SATURATED_AUC = 0.99
 """A scored rung whose AUC(S, R) reaches this is scored by the classifier divergence instead.
 
 With two strong effects in R, S is told apart from R perfectly, and so is S plus either
-effect alone: every candidate's AUC stays at 1 and every closure at 0 (round 2 of the blind
-validation, pair 8025: scene size + camera shake, no candidate and no coalition scored). The
-divergence (:func:`sim2real.stats.classifier_divergence`) still falls when one of the two
-effects is added."""
+effect alone, so every AUC closure is 0; the divergence
+(:func:`sim2real.stats.classifier_divergence`) still falls when one of the two effects is
+added (decision record: docs/design/sim2real-saturated-rungs.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
