@@ -4,6 +4,7 @@ Data flow: :class:`~datasets.spec.DatasetSpec` -> :func:`~datasets.plan.plan_uni
 :func:`~datasets.generation.generate_dataset` (simulate, render, shard) -> manifest ->
 :class:`~datasets.clip_dataset.ClothClipDataset` /
 :class:`~datasets.datamodule.ClothVideoDataModule`.
-Real footage: :class:`~datasets.real_video.RealVideoDataset`. Importing a submodule loads
+Real footage: :class:`~datasets.real_video.RealVideoDataset` /
+:class:`~datasets.real_datamodule.RealVideoDataModule`. Importing a submodule loads
 only what it needs (the DataModule needs lightning, generation needs the renderer).
 """

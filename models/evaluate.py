@@ -30,9 +30,10 @@ The classes come with the data, never from the simulator: a dataset's from its m
 material set, real footage's from the checkpoint's ``class_grid`` hyper-parameter (checkpoints
 without one predict the 54 classes of ``wang54``, see
 :func:`~models.material_classifier.load_classifier`). The checkpoint's class count is checked
-against them before anything is predicted. Predictions run through Lightning
-(``trainer.predict`` with :meth:`~models.material_classifier.MaterialClassifierModule.
-predict_step`, :func:`predict`), the same path for ``train.py``'s final test and this command.
+against them before anything is predicted. Predictions run through Lightning's test loop
+(``trainer.test`` over :class:`~models.material_classifier.ClipOutputsModule`, :func:`predict`),
+the same path for ``train.py``'s final test and this command; real footage comes from its
+datamodule, :class:`~datasets.real_datamodule.RealVideoDataModule`.
 """
 
 from __future__ import annotations
@@ -66,11 +67,12 @@ from common.grid import ClassGrid
 from common.paths import check_output_dir
 from datasets.clip_dataset import ClothClipDataset
 from datasets.manifest import SPLIT_PROTOCOLS, Manifest, legacy_class_grid
+from datasets.real_datamodule import RealVideoDataModule
 from datasets.real_video import DEFAULT_COLUMNS, RealVideoDataset, footage_files
 from datasets.spec import SPLITS
 
 from .correlation import MIN_SAMPLES, correlate
-from .material_classifier import MaterialClassifierModule, load_classifier
+from .material_classifier import ClipOutputsModule, MaterialClassifierModule, load_classifier
 from .metrics import (
     BREAKDOWNS,
     breakdown_metrics,
@@ -157,7 +159,7 @@ class _WidthCheck(Callback):
     def __init__(self, class_count: int):
         self.class_count = class_count
 
-    def on_predict_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, *_) -> None:
+    def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, *_) -> None:
         """Check the first batch's logits."""
         width = outputs["logits"].shape[-1]
         if batch_idx == 0 and width != self.class_count:
@@ -174,11 +176,11 @@ class _Progress(TQDMProgressBar):
         self.desc = desc
 
     @property
-    def predict_description(self) -> str:
+    def test_description(self) -> str:
         """The bar's name."""
         return self.desc
 
-    def init_predict_tqdm(self) -> Tqdm:
+    def init_test_tqdm(self) -> Tqdm:
         """A bar that leaves stdout to the command's own output."""
         return Tqdm(
             desc=self.desc, disable=self.is_disabled, leave=False, dynamic_ncols=True,
@@ -206,34 +208,39 @@ def _quiet_lightning() -> Iterator[None]:
 
 def predict(
     module: MaterialClassifierModule,
-    dataset: Dataset,
+    data: Dataset | L.LightningDataModule,
     *,
     batch_size: int = 16,
     device: torch.device | None = None,
     desc: str = "predict",
     class_count: int | None = None,
 ) -> tuple[torch.Tensor, list[dict]]:
-    """Logits (N, classes) of every clip of ``dataset`` and each sample's metadata (no pixels).
+    """Logits (N, classes) of every clip of ``data`` and each sample's metadata (no pixels).
 
-    Lightning's ``trainer.predict`` runs the module's
-    :meth:`~models.material_classifier.MaterialClassifierModule.predict_step` over the clips
-    in order, on ``device`` (default :func:`pick_device`), in full precision without
-    gradients. With ``class_count``, logits of another width are refused at the first batch.
+    Lightning's test loop (``trainer.test``) runs the module inside
+    :class:`~models.material_classifier.ClipOutputsModule` over the clips in order: those of
+    a datamodule's ``test_dataloader``, or of a dataset in batches of ``batch_size``. It runs
+    on ``device`` (default :func:`pick_device`), in full precision without gradients. With
+    ``class_count``, logits of another width are refused at the first batch.
     """
     device = device or pick_device()
     callbacks: list[Callback] = [_Progress(desc)]
     if class_count is not None:
         callbacks.append(_WidthCheck(class_count))
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=0)
+    clips = ClipOutputsModule(module)
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=device.type, devices=[device.index] if device.index is not None else 1,
             precision="32-true", logger=False, enable_checkpointing=False,
             enable_model_summary=False, inference_mode=False, callbacks=callbacks,
         )  # fmt: skip
-        outputs = trainer.predict(module, dataloaders=loader, return_predictions=True)
+        if isinstance(data, L.LightningDataModule):
+            trainer.test(clips, datamodule=data, verbose=False)
+        else:
+            loader = DataLoader(data, batch_size=batch_size, shuffle=False, num_workers=0)
+            trainer.test(clips, dataloaders=loader, verbose=False)
     logits, meta = [], []
-    for out in outputs or []:
+    for out in clips.outputs:
         logits.append(out["logits"])
         for i in range(out["logits"].shape[0]):
             meta.append({k: _item(v[i]) for k, v in out["meta"].items()})
@@ -372,15 +379,14 @@ def evaluate_real(
     clashes = [c for c in columns if c in (*SCORE_NAMES, "clips")]
     if clashes:
         raise InputError(f"columns {clashes} clash with report fields; rename them in labels.csv")
-    dataset = RealVideoDataset(
+    footage = RealVideoDataModule(
         real_dir, columns=columns, group=group, clip_len=clip_len, clip_stride=clip_stride,
-        target_fps=target_fps, size=size,
+        target_fps=target_fps, size=size, batch_size=batch_size,
     )  # fmt: skip
+    dataset = footage.dataset
     columns = dataset.columns
     _check_correlatable(dataset, Path(real_dir))
-    logits, meta = predict(
-        module, dataset, batch_size=batch_size, desc="real clips", class_count=grid.num_classes
-    )
+    logits, meta = predict(module, footage, desc="real clips", class_count=grid.num_classes)
     probs = logits.softmax(dim=1)
     rows_of: dict[str, list[int]] = {}
     for i, m in enumerate(meta):

@@ -6,8 +6,9 @@ lightning-hydra template; ``net_config`` (the net's plain ``_target_`` config, w
 in the checkpoint so that :func:`load_classifier` can rebuild the net and read its classes
 without the training config. Batches are the datasets' dicts: clips (``video``
 (B, T, 3, H, W)) or, for the per-frame baseline, frames (``image`` (B, 3, H, W)).
-:meth:`MaterialClassifierModule.predict_step` serves Lightning's ``trainer.predict``, through
-which every evaluation runs (:func:`models.evaluate.predict`).
+Every evaluation runs a trained module through Lightning's test loop inside
+:class:`ClipOutputsModule`, which keeps each batch's logits and metadata for the reports
+(:func:`models.evaluate.predict`).
 
 Logged: ``train/loss``, ``train/acc``, ``val/loss``, ``val/acc``, ``val/acc_best``,
 ``val/top5``, ``val/stretch_acc``, ``val/bend_acc``, ``val/grid_mae`` (and ``test/*``).
@@ -39,6 +40,7 @@ from .metrics import classification_metrics
 
 __all__ = [
     "ENCODER_CHECKPOINT_KEYS",
+    "ClipOutputsModule",
     "MaterialClassifierModule",
     "batch_input",
     "init_weights_from",
@@ -147,20 +149,6 @@ class MaterialClassifierModule(L.LightningModule):
         """Collect the logits; metrics come at the epoch's end."""
         self._eval_step("test", batch)
 
-    def predict_step(self, batch: dict, batch_idx: int, dataloader_idx: int = 0) -> dict:
-        """The batch's logits (float32, on the CPU) and its samples' other fields.
-
-        ``meta`` is the batch without its pixels (labels, keys, wind levels, video names:
-        whatever the dataset's samples carry), for reports that break results down.
-        """
-        logits = self(batch_input(batch)).float().cpu()
-        meta = {
-            k: v.cpu() if isinstance(v, torch.Tensor) else v
-            for k, v in batch.items()
-            if k not in PIXELS
-        }
-        return {"logits": logits, "meta": meta}
-
     def _grid(self) -> ClassGrid:
         """The class grid of the metrics: this module's, else its trainer's datamodule's."""
         if self.class_grid is None:
@@ -247,6 +235,40 @@ class MaterialClassifierModule(L.LightningModule):
         scheduler = self.scheduler_factory(optimizer)
         schedule = {"scheduler": scheduler, "interval": "epoch"}
         return {"optimizer": optimizer, "lr_scheduler": schedule}
+
+
+class ClipOutputsModule(L.LightningModule):
+    """Lightning's test loop over a trained classifier, keeping every batch's outputs.
+
+    The reports compute their own metrics (labelled clips, or real footage whose class is
+    unknown), so :meth:`test_step` logs nothing and appends each batch's outputs to
+    :attr:`outputs`, in the loader's order.
+
+    Args:
+        classifier: The trained module whose net maps the batches' pixels to logits.
+    """
+
+    def __init__(self, classifier: MaterialClassifierModule):
+        super().__init__()
+        self.classifier = classifier
+        self.outputs: list[dict] = []
+        """Per batch: ``logits`` (float32 on the CPU, (B, classes)) and ``meta``."""
+
+    def test_step(self, batch: dict, batch_idx: int, dataloader_idx: int = 0) -> dict:
+        """The batch's logits (float32, on the CPU) and its samples' other fields.
+
+        ``meta`` is the batch without its pixels (labels, keys, wind levels, video names:
+        whatever the dataset's samples carry), for reports that break results down.
+        """
+        logits = self.classifier(batch_input(batch)).float().cpu()
+        meta = {
+            k: v.cpu() if isinstance(v, torch.Tensor) else v
+            for k, v in batch.items()
+            if k not in PIXELS
+        }
+        out = {"logits": logits, "meta": meta}
+        self.outputs.append(out)
+        return out
 
 
 def _classifier_rows(state_dict: dict) -> int | None:

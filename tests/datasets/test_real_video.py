@@ -181,3 +181,20 @@ def test_videos_of_one_fabric_form_a_group(tmp_path):
     groups = [v.group for v in data.videos]
     assert data.group_column is None and "identical label rows" in data.group_rule
     assert groups[0] == groups[1] and len(set(groups)) == 3
+
+
+def test_the_datamodule_tests_every_clip_in_labels_order(folder):
+    from datasets.real_datamodule import RealVideoDataModule
+
+    footage = RealVideoDataModule(folder, clip_len=10, clip_stride=5, size=32, batch_size=3)
+    data = footage.dataset
+    assert [s.name for s in data.skipped] == ["wool"]  # read when made, before any clip
+    batches = list(footage.test_dataloader())
+    assert [len(b["video_name"]) for b in batches] == [3, 3, 1]
+    names = [n for b in batches for n in b["video_name"]]
+    starts = [int(s) for b in batches for s in b["start_frame"]]
+    assert names == ["silk.mp4"] * 3 + ["denim"] * 4
+    assert starts == [0, 10, 20, 0, 5, 10, 15]
+    torch.testing.assert_close(batches[1]["video"][0], data[3]["video"])
+    assert [float(x) for b in batches for x in b["stiffness"]] == [1.5] * 3 + [6.0] * 4
+    assert list(batches[0]["wind"]) == ["W1"] * 3

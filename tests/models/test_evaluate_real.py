@@ -166,7 +166,7 @@ def test_wind_levels_are_reported_as_w1_w2_w3():
     assert evaluate._breakdown_label("clip_index", "1") == "clip index 1"
 
 
-def test_predict_runs_the_modules_predict_step_through_lightning(tmp_path):
+def test_predict_runs_the_module_through_lightnings_test_loop(tmp_path):
     module = evaluate.load_classifier(write_checkpoint(tmp_path / "run" / "best.ckpt"))
     generator = torch.Generator().manual_seed(0)
     clips = [{"video": torch.rand(4, 3, 32, 32, generator=generator), "label": i, "key": f"k{i}"}
