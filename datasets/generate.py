@@ -20,6 +20,7 @@ from common.commands import hydra_command
 from common.configs import check_node, config_errors
 from common.errors import InputError
 from common.paths import check_name, check_output_dir
+from render.backgrounds import BACKDROPS
 from render.effects import VisualEffects
 from render.textures import TextureMode
 from simulator.cloth.effects import PhysicsEffects
@@ -70,7 +71,8 @@ def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> Da
 
     Args:
         cfg: A config with the fields of ``configs/generate.yaml`` (``sims_per_unit`` may
-            be left out: 0, all classes in one rollout; ``material_set`` too: ``wang54``).
+            be left out: 0, all classes in one rollout; ``material_set`` too: ``wang54``;
+            ``backdrop`` too: ``bank``).
         preset: Use this size preset instead of the config's ``preset`` node
             (:mod:`apps.demo` derives its own from ``fps`` and ``record_time``).
 
@@ -86,6 +88,7 @@ def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> Da
             )
         check_int(cfg.level, "level", min(RESOLUTION_LEVELS), max(RESOLUTION_LEVELS))
         texture = check_choice(cfg.texture, "texture", [m.value for m in TextureMode])
+        backdrop = check_choice(cfg.get("backdrop", "bank"), "backdrop", list(BACKDROPS))
         material_set = material_set_from_config(cfg.get("material_set"))
         classes = cfg.classes
         kwargs = {"material_set": material_set}
@@ -103,6 +106,7 @@ def spec_from_config(cfg: DictConfig, *, preset: SizePreset | None = None) -> Da
             scenario=instantiate(cfg.scenario),
             preset=instantiate(cfg.preset) if preset is None else preset,
             texture_mode=texture,
+            backdrop=backdrop,
             seed=check_int(cfg.seed, "seed", 0),
             lead_in=check_float(cfg.lead_in, "lead_in", 0),
             sim=instantiate(cfg.sim),

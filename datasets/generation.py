@@ -26,7 +26,7 @@ import numpy as np
 
 from common.errors import InputError
 from common.processes import run_in_workers, start_manager
-from render.backgrounds import make_background
+from render.backgrounds import backdrop_kinds, make_background
 from render.textures import make_texture
 from simulator.cloth.material import WANG54, ClothMaterial, load_wang_material
 from simulator.cloth.rollout import simulate, with_capsules
@@ -130,14 +130,17 @@ def sim_look(spec: DatasetSpec, sim: SimulationPlan) -> tuple[np.ndarray, np.nda
     """The simulation's cloth texture (uint8 (s, s, 3)) and background (uint8 (H, W, 3)).
 
     Both come from the simulation's seed alone, so every rendering of it (a dataset clip, a
-    sim-to-real candidate set) shows the same cloth in front of the same background.
+    sim-to-real candidate set) shows the same cloth in front of the same background; the
+    texture is of ``spec.texture_mode``'s family and the background of ``spec.backdrop``'s
+    kinds (``bank``: the whole background bank).
     """
     texture = make_texture(
         spec.texture_mode, np.random.default_rng([sim.seed, _TEXTURE_STREAM]), spec.texture_size
     )
     background = make_background(
-        np.random.default_rng([sim.seed, _BACKGROUND_STREAM]), spec.camera.width, spec.camera.height
-    )
+        np.random.default_rng([sim.seed, _BACKGROUND_STREAM]), spec.camera.width,
+        spec.camera.height, kinds=backdrop_kinds(spec.backdrop),
+    )  # fmt: skip
     return texture, background
 
 

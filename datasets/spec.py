@@ -1,7 +1,7 @@
 """What a generated dataset is: one frozen, validated spec (thesis 7.6-7.7.1, Table 7.2).
 
 A :class:`DatasetSpec` fixes everything that decides the bytes of a dataset: the motion
-(scene), mesh resolution, texture mode, physical and visual effect switches, size,
+(scene), mesh resolution, texture mode, backdrop, physical and visual effect switches, size,
 solver settings, image size, seed and the material set (the class grid). Its JSON form goes
 into the manifest; its hashes decide whether an existing output directory or mesh cache
 belongs to the same dataset.
@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from render.backgrounds import BACKDROPS
 from render.camera import CameraSpec
 from render.effects import VisualEffects, source_frame_count
 from render.lights import LightSpec
@@ -172,7 +173,9 @@ class DatasetSpec:
     """``wind`` or ``arm`` (thesis 7.4.3)."""
     scenario: ScenarioWind | ScenarioArmBend
     preset: SizePreset
-    texture_mode: str = "random"
+    texture_mode: str = dataclasses.field(
+        default="random", metadata={"choices": tuple(m.value for m in TextureMode)}
+    )
     """``grid``, ``color`` or ``random`` (Table 7.2's texture column)."""
     classes: tuple[int, ...] | None = None
     """Class ids of ``material_set`` to simulate (``None``: all of them)."""
@@ -199,6 +202,11 @@ class DatasetSpec:
     material_set: MaterialSet = WANG54
     """The classes: basis fabric and the stretch x bend multiplier grid (the labels' meaning,
     written into the manifest for training and evaluation)."""
+    backdrop: str = dataclasses.field(default="bank", metadata={"choices": tuple(BACKDROPS)})
+    """What the cloth is filmed in front of, drawn per simulation from its seed
+    (:data:`render.backgrounds.BACKDROPS`): ``bank`` (the procedural rooms, gradients and
+    shapes of the background bank), ``plain`` (one muted uniform colour), ``dark`` (a dark
+    studio backdrop) or ``gradient``."""
 
     def __post_init__(self):
         if self.motion not in MOTIONS:
@@ -216,6 +224,8 @@ class DatasetSpec:
                 f"texture_mode must be one of {[m.value for m in TextureMode]}, "
                 f"got {self.texture_mode!r}"
             ) from None
+        if not isinstance(self.backdrop, str) or self.backdrop not in BACKDROPS:
+            raise ValueError(f"backdrop must be one of {list(BACKDROPS)}, got {self.backdrop!r}")
         if not isinstance(self.material_set, MaterialSet):
             raise ValueError(f"material_set must be a MaterialSet, got {self.material_set!r}")
         count = self.material_set.num_classes
@@ -311,9 +321,10 @@ class DatasetSpec:
     def to_json(self) -> dict:
         """Plain-JSON form (goes into the manifest).
 
-        ``store_passes`` appears only when on and ``material_set`` only when it is not
-        :data:`~simulator.cloth.material.WANG54`, so datasets made before they existed keep
-        their keys (and resume); :meth:`from_json` reads a missing set as ``WANG54``. The
+        ``store_passes`` appears only when on, ``backdrop`` only when it is not ``bank`` and
+        ``material_set`` only when it is not :data:`~simulator.cloth.material.WANG54`, so
+        datasets made before they existed keep their keys (and resume); :meth:`from_json`
+        reads a missing backdrop as ``bank`` and a missing set as ``WANG54``. The
         Newton loop's ``whole_step`` (same arithmetic, one compiled call) appears only when
         off, and each group of visual-effect fields added later (:data:`_LATER_VISUAL_FIELDS`)
         only when one of its fields is off its default, for the same reason.
@@ -321,6 +332,8 @@ class DatasetSpec:
         out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
         if not self.store_passes:
             del out["store_passes"]
+        if self.backdrop == "bank":
+            del out["backdrop"]
         if out["sim"]["newton"].get("whole_step", True):
             del out["sim"]["newton"]["whole_step"]
         if self.material_set == WANG54:

@@ -12,6 +12,11 @@ furniture) and, when scikit-image is installed, ``photo`` (a random crop of its 
 photographs). Every kind ends with a random Gaussian blur (depth of field) and a mild
 noise grain. Determinism: as for textures, same Generator state -> same bytes for a given
 set of available kinds; pin ``kinds`` to be independent of scikit-image.
+
+Backdrops (:data:`BACKDROPS`, a dataset's ``backdrop``) say which kinds a dataset draws from:
+``bank`` the whole bank above (the training data's rooms), ``plain`` one muted uniform colour,
+``dark`` a dark studio backdrop, ``gradient`` the gradient kind only. ``plain`` and ``dark``
+are kinds of their own that the bank never draws, so the bank's bytes are those of before.
 """
 
 from __future__ import annotations
@@ -32,10 +37,25 @@ from .patterns import (
     value_noise,
 )
 
-__all__ = ["PROCEDURAL_BACKGROUND_KINDS", "available_background_kinds", "make_background"]
+__all__ = [
+    "BACKDROPS",
+    "PROCEDURAL_BACKGROUND_KINDS",
+    "available_background_kinds",
+    "backdrop_kinds",
+    "make_background",
+]
 
 PROCEDURAL_BACKGROUND_KINDS: tuple[str, ...] = ("gradient", "room", "shapes")
-"""Background kinds that need nothing beyond numpy and cv2."""
+"""Background kinds of the bank that need nothing beyond numpy and cv2."""
+
+BACKDROPS: dict[str, tuple[str, ...] | None] = {
+    "bank": None,
+    "plain": ("plain",),
+    "dark": ("dark",),
+    "gradient": ("gradient",),
+}
+"""Backdrop name -> the kinds :func:`make_background` draws from (``None``: the whole bank,
+:func:`available_background_kinds`)."""
 
 
 def available_background_kinds() -> tuple[str, ...]:
@@ -43,6 +63,13 @@ def available_background_kinds() -> tuple[str, ...]:
     if photos_available():
         return (*PROCEDURAL_BACKGROUND_KINDS, "photo")
     return PROCEDURAL_BACKGROUND_KINDS
+
+
+def backdrop_kinds(backdrop: str) -> tuple[str, ...] | None:
+    """The kinds of ``backdrop`` (:data:`BACKDROPS`); a ValueError names the allowed ones."""
+    if backdrop not in BACKDROPS:
+        raise ValueError(f"backdrop must be one of {list(BACKDROPS)}, got {backdrop!r}")
+    return BACKDROPS[backdrop]
 
 
 def _muted(rng: np.random.Generator, lo: float = 0.3, hi: float = 0.9) -> np.ndarray:
@@ -124,7 +151,19 @@ def _photo(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
     return random_photo(rng, height, width, min_fraction=0.5)
 
 
-_GENERATORS = {"gradient": _gradient, "room": _room, "shapes": _shapes, "photo": _photo}
+def _plain(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    return _fill(_muted(rng), height, width)
+
+
+def _dark(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    # A black or dark-grey studio cloth, lit a little.
+    return _fill(_muted(rng, 0.02, 0.12), height, width)
+
+
+_GENERATORS = {
+    "gradient": _gradient, "room": _room, "shapes": _shapes, "photo": _photo,
+    "plain": _plain, "dark": _dark,
+}  # fmt: skip
 
 
 def make_background(

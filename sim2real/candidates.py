@@ -10,11 +10,14 @@ candidate with no change here:
 * a field whose metadata says ``strength_of=<switch>`` and ``plausible=(low, high)`` is that
   switch's strength, fitted within the plausible range; a switch without one is binary;
 * a scenario field with ``plausible`` (a number) or ``choices`` metadata is a **scene**
-  candidate: something the user may not have matched when filming.
+  candidate: something the user may not have matched when filming;
+* a :class:`~datasets.spec.DatasetSpec` field with ``choices`` metadata is a **look**
+  candidate: a choice the training data fixed and real footage varies (the cloth's texture
+  family ``texture_mode``, the ``backdrop``); it re-renders the cached meshes.
 
 Stages (where in the pipeline the effect acts): ``scene``, ``physics`` (the simulator),
-``appearance`` (the renderer's lighting and shading) and ``camera`` (the image pipeline),
-the latter two from the visual switch's ``stage`` metadata.
+``appearance`` (the renderer's lighting and shading, the cloth's texture and the backdrop) and
+``camera`` (the image pipeline), the visual switches' from their ``stage`` metadata.
 """
 
 from __future__ import annotations
@@ -45,13 +48,14 @@ class Candidate:
     """
 
     name: str
-    """``physics.<switch>``, ``visual.<switch>`` or ``scene.<field>``."""
+    """``physics.<switch>``, ``visual.<switch>``, ``scene.<field>`` or ``look.<field>``."""
     stage: str
     """One of :data:`STAGES`."""
     registry: str
-    """``physics``, ``visual`` or ``scene``: the spec entry it changes."""
+    """``physics``, ``visual``, ``scene`` or ``look``: the spec entry it changes (``look``:
+    the spec's own fields)."""
     field: str
-    """The switch (physics/visual) or scenario field (scene) it sets."""
+    """The switch (physics/visual), scenario field (scene) or spec field (look) it sets."""
     value: object = None
     """Value the switch takes when the candidate is added (the opposite of its default)."""
     param: str | None = None
@@ -61,7 +65,7 @@ class Candidate:
     integer: bool = False
     choices: tuple = ()
     default: object = None
-    """The nominal value of the strength / scene field."""
+    """The nominal value of the strength / scene or look field."""
     neutral: float | None = None
     """The strength at which the effect changes nothing, when it is not below the range: a
     scene field's nominal value, a frame-rate ratio of 1, a JPEG quality of 100."""
@@ -135,6 +139,8 @@ class Candidate:
             return dataclasses.replace(
                 spec, scenario=dataclasses.replace(spec.scenario, **{self.field: strength})
             )
+        if self.registry == "look":
+            return dataclasses.replace(spec, **{self.field: strength})
         changes = {self.field: self.value}
         if self.param is not None:
             changes[self.param] = int(strength) if self.integer else strength
@@ -221,6 +227,22 @@ def _scene_candidates(spec: DatasetSpec) -> list[Candidate]:
     return out
 
 
+def _look_candidates(spec: DatasetSpec) -> list[Candidate]:
+    """The spec's own fields with ``choices`` metadata: texture family and backdrop."""
+    return [
+        Candidate(
+            name=f"look.{field.name}",
+            stage=field.metadata.get("stage", "appearance"),
+            registry="look",
+            field=field.name,
+            choices=tuple(field.metadata["choices"]),
+            default=getattr(spec, field.name),
+        )
+        for field in dataclasses.fields(spec)
+        if "choices" in field.metadata
+    ]
+
+
 def candidate_library(
     spec: DatasetSpec,
     physics_cls: type = PhysicsEffects,
@@ -231,7 +253,7 @@ def candidate_library(
     ``physics_cls`` / ``visual_cls`` exist for tests that plant a new switch; the
     diagnosis always uses the project's registries.
     """
-    found = _scene_candidates(spec)
+    found = _scene_candidates(spec) + _look_candidates(spec)
     found += _switch_candidates(physics_cls, "physics") + _switch_candidates(visual_cls, "visual")
     found.sort(key=lambda c: STAGES.index(c.stage))
     return {c.name: c for c in found}
@@ -265,15 +287,17 @@ def select_candidates(
 
 
 def _command(cfg) -> None:
-    """``python -m sim2real.candidates [motion=arm]``: list the library of a scene."""
+    """``python -m sim2real.candidates [motion=arm] [texture=grid]``: list a scene's library."""
     from hydra.utils import instantiate
 
     from common.configs import config_errors
     from datasets.spec import PRESETS
 
     with config_errors():
-        scenario = instantiate(cfg.scenario)
-    spec = DatasetSpec(motion=str(cfg.motion), scenario=scenario, preset=PRESETS["small"])
+        spec = DatasetSpec(
+            motion=str(cfg.motion), scenario=instantiate(cfg.scenario), preset=PRESETS["small"],
+            texture_mode=cfg.texture, backdrop=cfg.backdrop,
+        )  # fmt: skip
     for c in candidate_library(spec).values():
         strengths = (
             "switch"

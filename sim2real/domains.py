@@ -2,8 +2,8 @@
 
 Simulated sets go through the dataset generator's own pieces (mesh cache keyed by the physics
 hash, :func:`datasets.generation.simulate_unit`, the generator's renderer, each simulation's
-texture and background), so a visual candidate re-renders cached meshes and only a physical or
-scene candidate re-simulates. Each simulation is rendered as one video (image effects such
+texture and background), so a visual or look candidate (texture family, backdrop) re-renders
+cached meshes and only a physical or scene candidate re-simulates. Each simulation is rendered as one video (image effects such
 as a frame-rate change act on the whole video, as a camera would) and cut into clips exactly
 as :class:`datasets.real_video.RealVideoDataset` cuts a real video: ``clip_len`` frames every
 ``clip_stride`` frames at the preset's frame rate. Groups (for every resampling in the
@@ -162,7 +162,7 @@ def simulated_clips(
     for unit in plan_units(spec):
         p, k = prior_materials(spec, unit)
         seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k))  # cached by physics
-        # key and materials: a visual candidate re-renders the nominal meshes
+        # key and materials: a visual or look candidate re-renders the nominal meshes
         capsules = seq.capsules
         start, stop = spec.lead_in_frames, spec.frames_per_sim
         for b, sim in enumerate(unit.sims):

@@ -38,6 +38,8 @@ def test_default_and_override_configs_build_specs():
     assert arm.camera.position != spec.camera.position, "arm must use the arm camera"
     assert arm.visual.motion_blur and arm.physics.gusty_wind
     assert arm.enabled_effects() == ["physics.gusty_wind=on", "visual.motion_blur=on"]
+    assert spec.backdrop == "bank"
+    assert spec_from_config(_compose("backdrop=dark")).backdrop == "dark"
 
 
 def test_unknown_motion_is_named():
@@ -52,6 +54,7 @@ def test_unknown_motion_is_named():
         (["+effects.rain=true"], "rain"),
         (["preset.sims_per_class=-4"], "sims_per_class"),
         (["texture=plaid"], "texture must be one of grid, color, random"),
+        (["backdrop=studio"], "backdrop must be one of bank, plain, dark, gradient"),
         (["level=7"], r"level must be an integer in \[1, 3\]"),
         (["classes=[0,1.7]"], r"classes\[1\] must be an integer class id in \[0, 53\]"),
         (["classes=[0,0]"], "classes must not repeat"),

@@ -53,6 +53,7 @@ def test_unit_size_batches_simulations():
     [
         ({"motion": "swing"}, "motion"),
         ({"texture_mode": "plaid"}, "texture_mode"),
+        ({"backdrop": "studio"}, r"backdrop must be one of \['bank', 'plain', 'dark', 'grad"),
         ({"classes": (0, 54)}, "classes"),
         ({"classes": ()}, "classes"),
         ({"classes": (0, 1.7)}, r"classes must be integer class ids in \[0, 53\], got \[0, 1.7\]"),
@@ -100,6 +101,8 @@ def test_keys_separate_physics_from_rendering():
     regrid = tiny_spec(texture_mode="grid")
     assert spec.physics_key() == regrid.physics_key()
     assert spec.key() != regrid.key()
+    plain = tiny_spec(backdrop="plain")
+    assert spec.physics_key() == plain.physics_key() and spec.key() != plain.key()
     assert tiny_spec(seed=3).physics_key() != spec.physics_key()
 
 

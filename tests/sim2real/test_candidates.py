@@ -20,9 +20,11 @@ SPEC = DatasetSpec(
 def test_every_switch_of_both_registries_is_a_candidate_with_a_known_stage():
     library = candidate_library(SPEC)
     names = {n for n in library if not n.startswith("scene.")}
-    expected = {f"physics.{n}" for n in PHYSICS_EFFECT_NAMES} | {
-        f"visual.{n}" for n in EFFECT_NAMES
-    }
+    expected = (
+        {f"physics.{n}" for n in PHYSICS_EFFECT_NAMES}
+        | {f"visual.{n}" for n in EFFECT_NAMES}
+        | {"look.texture_mode", "look.backdrop"}
+    )  # the spec's fields with choices
     assert names == expected
     assert {c.stage for c in library.values()} <= set(STAGES)
     assert library["visual.sensor_noise"].stage == "camera"

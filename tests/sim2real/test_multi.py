@@ -36,6 +36,14 @@ def test_stages_are_spread_over_many_sets_and_twins_withhold_nothing():
     assert draw_answer(3, LIBRARY)["kind"] in ("single", "pair", "open")  # never drawn unasked
 
 
+def test_multi_sets_draw_the_texture_family_and_the_backdrop_too():
+    drawn = [e for s in range(40) for e in draw_answer(s, LIBRARY, "multi")["effects"]]
+    for name in ("look.texture_mode", "look.backdrop"):
+        strengths = {e["strength"] for e in drawn if e["name"] == name}
+        assert strengths and strengths <= set(LIBRARY[name].choices) - {LIBRARY[name].default}
+        assert all(e["stage"] == "appearance" for e in drawn if e["name"] == name)
+
+
 def _joint(shapley: dict[str, float], stages: dict[str, str]) -> JointFit:
     return JointFit(
         factors=stages, strengths=dict.fromkeys(shapley, 1.0), closure=sum(shapley.values()),
