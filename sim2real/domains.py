@@ -3,8 +3,9 @@
 Simulated sets go through the dataset generator's own pieces (mesh cache keyed by the physics
 hash, :func:`datasets.generation.simulate_unit`, the generator's renderer, each simulation's
 texture and background), so a visual or look candidate (texture family, backdrop) re-renders
-cached meshes and only a physical or scene candidate re-simulates. Each simulation is rendered as one video (image effects such
-as a frame-rate change act on the whole video, as a camera would) and cut into clips exactly
+cached meshes and only a physical or scene candidate re-simulates. Each simulation is
+rendered as one video (image effects such as a frame-rate change act on the whole video, as
+a camera would) and cut into clips exactly
 as :class:`datasets.real_video.RealVideoDataset` cuts a real video: ``clip_len`` frames every
 ``clip_stride`` frames at the preset's frame rate. Groups (for every resampling in the
 statistics) are simulations in S and videos in R. Simulated cloths take continuous materials
