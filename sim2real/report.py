@@ -481,6 +481,38 @@ def _shrink_section(shrink: dict | None) -> list[str]:
             ],
             gap_rows,
         ),
+        *_score_correlation_lines(shrink.get("score_correlations")),
+    ]
+
+
+def _score_correlation_lines(correlations: dict | None) -> list[str]:
+    """Every score against every measured column, pooled and per wind, before and after.
+
+    Pearson r with the evaluation's grouped bootstrap intervals.
+    """
+    if not correlations:
+        return []
+    before, after = correlations["before"], correlations["after"]
+    rows = []
+    for scope, by_score in before.items():
+        for score, by_column in by_score.items():
+            for column, b in by_column.items():
+                a = after[scope][score][column]
+                change = (None if b["pearson"] is None or a["pearson"] is None
+                          else a["pearson"] - b["pearson"])  # fmt: skip
+                rows.append([
+                    "pooled" if scope == "all" else scope, score, column,
+                    _fmt(b["pearson"], 2), "–" if b["pearson_ci"] is None else _ci(b["pearson_ci"]),
+                    _fmt(a["pearson"], 2), "–" if a["pearson_ci"] is None else _ci(a["pearson_ci"]),
+                    _fmt(change, 2),
+                ])  # fmt: skip
+    header = ["videos", "score", "measured", "before", "95 % CI", "after", "95 % CI", "change"]
+    return [
+        "",
+        "Every score against every measured column (Pearson r; 95 % intervals from a bootstrap "
+        "over fabrics), pooled over the winds and per wind:",
+        "",
+        markdown_table(header, rows),
     ]
 
 

@@ -18,12 +18,14 @@ nominal simulator and with the effect added. The diagnosis report is rewritten w
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 from common.checks import check_choice, check_int
 from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_output_dir
+from datasets.real_video import DEFAULT_COLUMNS
 from datasets.spec import PRESETS, DatasetSpec
 
 from .candidates import candidate_library
@@ -118,14 +120,18 @@ def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) ->
     return best
 
 
-def _correlations(module, real_dir, out, spec: DatasetSpec, clip_len, clip_stride) -> dict:
+def _correlations(module, real_dir, out, spec: DatasetSpec, clip_len, clip_stride,
+                  columns, group) -> dict:  # fmt: skip
+    """The real set's evaluation (:func:`models.evaluate.evaluate_real`).
+
+    Every score against every column, pooled and per wind, with grouped bootstrap intervals.
+    """
     from models.evaluate import evaluate_real
 
-    report = evaluate_real(
-        module, real_dir, out, clip_len=clip_len, clip_stride=clip_stride,
-        target_fps=spec.preset.fps, size=spec.camera.height,
+    return evaluate_real(
+        module, real_dir, out, columns=columns, group=group, clip_len=clip_len,
+        clip_stride=clip_stride, target_fps=spec.preset.fps, size=spec.camera.height,
     )  # fmt: skip
-    return report["correlations"]["all"]
 
 
 def shrink(
@@ -136,8 +142,14 @@ def shrink(
     effects: str | None = None,
     n_jobs: int = 2,
     seed: int = 0,
+    columns: Sequence[str] = DEFAULT_COLUMNS,
+    group: str | None = None,
 ) -> dict:
     """Retrain with the identified effect and measure the gap and correlations after.
+
+    ``columns``: the measured ``labels.csv`` columns each score is correlated with (the
+    first two, as in the thesis's Table 7.3, lead the report); ``group``: the column whose
+    equal values form one fabric for the grouped intervals.
 
     Returns the section-3 dict (also stored in ``report.json`` and the rewritten reports).
     """
@@ -163,9 +175,9 @@ def shrink(
     clip_len, clip_stride = inputs.clip_len, inputs.clip_stride
     real_dir = Path(inputs.real_dir)
     before = _correlations(load_classifier(checkpoint), real_dir, out / "before", train_spec,
-                           clip_len, clip_stride)  # fmt: skip
+                           clip_len, clip_stride, columns, group)  # fmt: skip
     after = _correlations(load_classifier(after_ckpt), real_dir, out / "after", train_spec,
-                          clip_len, clip_stride)  # fmt: skip
+                          clip_len, clip_stride, columns, group)  # fmt: skip
 
     # The gap after: S with the effect vs R, both seen by the fine-tuned network.
     nominal = DatasetSpec.from_json(inputs.nominal_spec)
@@ -217,7 +229,11 @@ def shrink(
         "effects": [{"name": n, "strength": s} for n, s in chosen],
         "preset": preset, "epochs": epochs, "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
-        "correlations": {"before": before, "after": after}, "rungs": rungs,
+        "correlations": {"before": before["correlations"]["all"],
+                         "after": after["correlations"]["all"]},
+        "score_correlations": {"before": before["score_correlations"],
+                               "after": after["score_correlations"]},
+        "rungs": rungs,
         "predictivity": srcc,
         "closure_predicted_total": (result.joint.closure if result.joint is not None
                                     and len(chosen) > 1 else None),
@@ -240,10 +256,16 @@ def run(cfg) -> dict:
     effects = cfg.effects
     if effects is not None and (not isinstance(effects, str) or not effects.strip()):
         raise InputError(f"effects must be name=strength,... or null, got {effects!r}")
+    columns = cfg.columns
+    if (not OmegaConf.is_list(columns) or not columns
+            or not all(isinstance(c, str) and c for c in columns)):  # fmt: skip
+        raise InputError(f"columns must be a non-empty list of labels.csv columns, got {columns!r}")
+    if cfg.group is not None and not isinstance(cfg.group, str):
+        raise InputError(f"group must be a labels.csv column or null, got {cfg.group!r}")
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
         return shrink(cfg.report, epochs=epochs, preset=str(cfg.preset), effects=effects,
-                      n_jobs=n_jobs)  # fmt: skip
+                      n_jobs=n_jobs, columns=list(columns), group=cfg.group)  # fmt: skip
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None
 

@@ -135,3 +135,4 @@ def test_the_truth_is_refitted_from_its_sealed_strengths_over_the_scored_grid():
     assert defocus.start == 2.018 and defocus.options == (0.75, 2.018, 2.25, 3.0)
     assert pose.options == ("edge",) and pose.start == "edge"
     assert shadows.options == (None,) and shadows.start is None  # a switch: on
+

@@ -379,6 +379,11 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
         for target in ("stiffness", "density"):
             entry = section["correlations"][label][target]
             assert entry["count"] == 8
+        every = section["score_correlations"][label]  # every score, pooled and per wind
+        assert set(every) >= {"all"} and len(every) > 1
+        assert set(every["all"]) == {"material_score", "stretch_score", "bend_score"}
+        assert every["all"]["material_score"]["stiffness"] == section["correlations"][label][
+            "stiffness"]  # fmt: skip
     assert set(section["rungs"]) == set(result.rungs)
     noise = result.candidates["visual.sensor_noise"]
     predicted = {**noise["closure"], **noise["closure_auc"]}  # the classifier's where scored
@@ -392,6 +397,7 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     assert srcc["before"]["checkpoints"] == srcc["after"]["checkpoints"] == 4
     text = (out / "report.md").read_text()
     assert "## 3. How far it shrinks" in text and "fine-tuned for 2 epochs" in text
+    assert "| pooled | bend_score | stiffness |" in text  # every score against every column
     assert "SRCC" in text
     assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2
 

@@ -1,0 +1,19 @@
+"""The shrink command's own fields: one line naming the field, before any work."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.mark.parametrize(("override", "field"), [
+    ("columns=[]", "columns"), ("columns=stiffness", "columns"), ("group=[a]", "group"),
+])  # fmt: skip
+def test_shrink_names_a_bad_columns_or_group_field(tmp_path, override, field):
+    done = subprocess.run(
+        [sys.executable, "-m", "sim2real.shrink", f"report={tmp_path}", override],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode != 0
+    assert done.stderr.strip().splitlines()[-1].startswith(f"error: {field} must be")
+    assert "Traceback" not in done.stderr
