@@ -21,7 +21,7 @@ HYDRA = {
 COMMANDS = [
     "benchmarks.datagen_bench", "benchmarks.detection_limits", "benchmarks.diagnose_bench",
     "benchmarks.ell_layout_probe", "benchmarks.gap_resolution", "benchmarks.input_audit",
-    "benchmarks.sim2real_accuracy",
+    "benchmarks.sim2real_accuracy", "benchmarks.sim2real_multi_effect",
     "benchmarks.mujoco_cloth",
     "benchmarks.precond_bench", "benchmarks.render_bench", "benchmarks.sim_bench",
     "benchmarks.thread_load_bench", "benchmarks.tissue_bench", "benchmarks.train_bench",

@@ -1,0 +1,176 @@
+"""The multi-effect validation's figures against the targets of the joint diagnosis.
+
+Reads a scored validation round of ``multi`` and ``twin`` sets (``validation.json`` written by
+``python -m sim2real.study.validate --kinds multi:24,twin:20 ...``) and, optionally, the
+closed loop on independent-engine footage (a diagnosis folder after ``python -m
+sim2real.shrink``: its ``report.json`` holds every score's correlations before and after
+retraining). Writes ``sim2real_multi_effect.json`` and a Markdown table beside it.
+
+Usage: ``python -m benchmarks.sim2real_multi_effect --validation <validate --out folder>
+[--loop <diagnosis folder after shrink>] [--out docs/results]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_dir
+from sim2real.study.validate import summarise
+
+ROOT = Path(__file__).resolve().parents[1]
+
+LOOP_PAIRS = (
+    ("bend_score", "stiffness"),
+    ("stretch_score", "stretch_stiffness"),
+    ("material_score", "density"),
+)
+"""(score, measured column) pairs whose pooled Pearson r the closed loop must raise; the
+independent engine's ``stiffness`` is the bending multiplier, ``stretch_stiffness`` [N/m]."""
+
+TARGETS = {
+    "multi_sets": (">=", 24),
+    "twin_sets": (">=", 20),
+    "factor_f1": (">=", 0.8),
+    "stage_share_error_pts_max": ("<=", 15.0),
+    "twin_false_attribution": ("<=", 0.05),
+    "independent_engine_r_gain_min": (">=", 0.2),
+    "independent_engine_r_after_min": (">=", 0.5),
+    "quick_minutes": ("<=", 30.0),
+}
+"""The targets of the joint diagnosis (``quick_minutes``: the longest diagnosis of the round;
+the first one builds the candidate library)."""
+
+
+def _rows(folder: Path) -> list[dict]:
+    path = folder / "validation.json"
+    if not path.is_file():
+        raise InputError(f"--validation: {folder} holds no validation.json; give the --out "
+                         "folder of a finished sim2real.study.validate run")  # fmt: skip
+    try:
+        rows = json.loads(path.read_text())["sets"]
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"--validation: {path} is not a validation.json ({err})") from None
+    kept = [r for r in rows if r.get("kind") in ("multi", "twin")]
+    if not kept:
+        raise InputError(f"--validation: {path} has no multi or twin sets")
+    return kept
+
+
+def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
+    """Pooled Pearson r of each (score, column) pair before and after, and the gains."""
+    shrink = report.get("shrink") or {}
+    every = shrink.get("score_correlations")
+    if every is None:
+        raise InputError("--loop: the report has no shrink section with every score's "
+                         "correlations; run python -m sim2real.shrink on it first")  # fmt: skip
+    out = {}
+    for score, column in pairs:
+        try:
+            before = every["before"]["all"][score][column]
+            after = every["after"]["all"][score][column]
+        except KeyError:
+            raise InputError(
+                f"--loop: no {score} vs {column} correlation; rerun shrink with "
+                f"columns=[...,{column}]"
+            ) from None
+        out[f"{score} vs {column}"] = {
+            "before": before["pearson"], "before_ci": before["pearson_ci"],
+            "after": after["pearson"], "after_ci": after["pearson_ci"],
+            "gain": None if None in (before["pearson"], after["pearson"])
+            else after["pearson"] - before["pearson"],
+        }  # fmt: skip
+    return out
+
+
+def figures(rows: list[dict], loop: dict | None) -> dict:
+    """The round's figures, each target and whether it is met (``None``: not measured)."""
+    summary = summarise(rows)
+    minutes = [r["minutes"] for r in rows if r.get("minutes") is not None]
+    out = {
+        "sets": {"multi": sum(r["kind"] == "multi" for r in rows),
+                 "twin": sum(r["kind"] == "twin" for r in rows)},
+        "seeds": sorted(int(r["seed"]) for r in rows),
+        "factor_f1": summary["factor_f1"],
+        "factor_f1_matter": summary["factor_f1_matter"],
+        "factor_precision": summary["factor_precision"],
+        "factor_recall": summary["factor_recall"],
+        "stage_share_error_pts": {"median": summary["stage_share_error_pts_median"],
+                                  "max": summary["stage_share_error_pts_max"]},
+        "twin_false_attribution": summary["twin_false_attribution"],
+        "quick_minutes": {"first": minutes[0] if minutes else None,
+                          "median": float(np.median(minutes)) if minutes else None,
+                          "max": max(minutes) if minutes else None},
+        "independent_engine": loop,
+        "independent_engine_r_gain_min": None,
+        "independent_engine_r_after_min": None,
+    }  # fmt: skip
+    if loop:
+        gains = [v["gain"] for v in loop.values()]
+        afters = [v["after"] for v in loop.values()]
+        out["independent_engine_r_gain_min"] = None if None in gains else min(gains)
+        out["independent_engine_r_after_min"] = None if None in afters else min(afters)
+    measured = {
+        **out, "stage_share_error_pts_max": out["stage_share_error_pts"]["max"],
+        "quick_minutes": out["quick_minutes"]["max"], "multi_sets": out["sets"]["multi"],
+        "twin_sets": out["sets"]["twin"],
+    }  # fmt: skip
+    out["targets"] = {
+        key: {"target": f"{op} {bound:g}", "measured": measured[key],
+              "met": None if measured[key] is None
+              else (measured[key] >= bound if op == ">=" else measured[key] <= bound)}
+        for key, (op, bound) in TARGETS.items()
+    }  # fmt: skip
+    return out
+
+
+def table(result: dict) -> str:
+    """The targets as a Markdown table."""
+    lines = ["| measure | target | measured | met |", "|---|---|---|---|"]
+    for key, t in result["targets"].items():
+        value = t["measured"]
+        shown = "–" if value is None else f"{value:.2f}"
+        met = "–" if t["met"] is None else ("yes" if t["met"] else "no")
+        lines.append(f"| {key} | {t['target']} | {shown} | {met} |")
+    sets = result["sets"]
+    lines.append("")
+    lines.append(f"{sets['multi']} multi-effect and {sets['twin']} effect-free sets (seeds "
+                 f"{min(result['seeds'])}-{max(result['seeds'])}); quick_minutes: the longest "
+                 "diagnosis of the round (the first builds the candidate library).")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--validation", type=Path, required=True,
+                        help="the --out folder of a scored multi/twin validation round")
+    parser.add_argument("--loop", type=Path, default=None,
+                        help="a diagnosis folder of independent-engine footage after shrink")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results")
+    args = parser.parse_args(argv)
+    rows = _rows(args.validation)
+    loop = None
+    if args.loop is not None:
+        path = args.loop / "report.json"
+        if not path.is_file():
+            raise InputError(f"--loop: {args.loop} holds no report.json")
+        loop = loop_figures(json.loads(path.read_text()))
+    result = figures(rows, loop)
+    check_output_dir(args.out, "--out")
+    args.out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(args.out / "sim2real_multi_effect.json",
+                       (json.dumps(result, indent=1) + "\n").encode())  # fmt: skip
+    atomic_write_bytes(args.out / "sim2real_multi_effect.md", table(result).encode())
+    print(table(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

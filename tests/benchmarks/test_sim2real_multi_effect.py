@@ -1,0 +1,77 @@
+"""The multi-effect results writer: figures, targets and one-line errors."""
+
+import json
+
+import pytest
+
+from benchmarks.sim2real_multi_effect import figures, loop_figures, main, table
+
+
+def _row(seed, kind, **values):
+    return {"seed": seed, "kind": kind, "budget": "quick", "minutes": 10.0 + seed % 7, **values}
+
+
+ROWS = [
+    _row(1, "multi", factor_f1=1.0, factor_f1_matter=1.0, factor_precision=1.0,
+         factor_recall=1.0, stage_share_error_pts=4.0),
+    _row(2, "multi", factor_f1=0.5, factor_f1_matter=0.5, factor_precision=1.0,
+         factor_recall=1 / 3, stage_share_error_pts=20.0),
+    _row(3, "twin", false_attribution=False),
+    _row(4, "twin", false_attribution=True),
+]  # fmt: skip
+
+
+def _loop(before, after):
+    def corr(r):
+        return {"pearson": r, "pearson_ci": [r - 0.1, r + 0.1]}
+
+    pairs = {"bend_score": "stiffness", "stretch_score": "stretch_stiffness",
+             "material_score": "density"}  # fmt: skip
+    every = {
+        label: {"all": {s: {c: corr(v)} for s, c in pairs.items()}}
+        for label, v in (("before", before), ("after", after))
+    }
+    return {"shrink": {"score_correlations": every}}
+
+
+def test_figures_and_targets_from_a_round_and_a_loop():
+    result = figures(ROWS, loop_figures(_loop(0.25, 0.55)))
+    assert result["sets"] == {"multi": 2, "twin": 2}
+    assert result["factor_f1"] == pytest.approx(0.75)
+    assert result["stage_share_error_pts"] == {"median": 12.0, "max": 20.0}
+    assert result["twin_false_attribution"] == 0.5
+    assert result["independent_engine_r_gain_min"] == pytest.approx(0.3)
+    assert result["independent_engine_r_after_min"] == pytest.approx(0.55)
+    met = {k: t["met"] for k, t in result["targets"].items()}
+    assert met == {"multi_sets": False, "twin_sets": False, "factor_f1": False,
+                   "stage_share_error_pts_max": False, "twin_false_attribution": False,
+                   "independent_engine_r_gain_min": True,
+                   "independent_engine_r_after_min": True, "quick_minutes": True}  # fmt: skip
+    assert "| factor_f1 | >= 0.8 | 0.75 | no |" in table(result)
+
+
+def test_without_a_loop_its_targets_are_not_measured():
+    result = figures(ROWS, None)
+    assert result["targets"]["independent_engine_r_gain_min"]["met"] is None
+    assert "| independent_engine_r_after_min | >= 0.5 | – | – |" in table(result)
+
+
+def test_the_command_writes_json_and_table_and_names_bad_inputs(tmp_path, capsys):
+    round_ = tmp_path / "round"
+    round_.mkdir()
+    (round_ / "validation.json").write_text(json.dumps({"sets": ROWS}))
+    out = tmp_path / "results"
+    main(["--validation", str(round_), "--out", str(out)])
+    written = json.loads((out / "sim2real_multi_effect.json").read_text())
+    assert written["seeds"] == [1, 2, 3, 4]
+    assert (out / "sim2real_multi_effect.md").read_text().startswith("| measure |")
+    with pytest.raises(SystemExit) as stop:
+        main(["--validation", str(tmp_path / "none"), "--out", str(out)])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.strip().startswith("error: --validation:")
+    shrinkless = tmp_path / "diagnosis"
+    shrinkless.mkdir()
+    (shrinkless / "report.json").write_text(json.dumps({"shrink": None}))
+    with pytest.raises(SystemExit):
+        main(["--validation", str(round_), "--loop", str(shrinkless), "--out", str(out)])
+    assert "run python -m sim2real.shrink" in capsys.readouterr().err
