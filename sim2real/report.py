@@ -347,7 +347,9 @@ def _joint_lines(joint: JointFit | None) -> list[str]:
         return []
     rows = [
         [name, stage, ("nominal" if name not in joint.strengths
-                       else "on" if joint.strengths[name] is None else _fmt(joint.strengths[name])),
+                       else "on" if joint.strengths[name] is None else _fmt(joint.strengths[name])
+                       + (f" {_ci(joint.strength_interval[name])}"
+                          if name in joint.strength_interval else "")),
          f"{100 * joint.shapley[name]:.0f} % {_percent_ci(joint.shapley_interval[name])}"
          if name in joint.shapley else "–",
          f"{100 * joint.reset[name]:.0f} % {_percent_ci(joint.reset_interval[name])}"

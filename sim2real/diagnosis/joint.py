@@ -40,7 +40,7 @@ from .scoring import candidate_result, oof_divergence
 __all__ = [
     "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Screen",
     "Value", "assignment", "attribute", "calibrate", "closure_values", "divergence_closure",
-    "fit_jointly", "nominal_scores", "point_closures", "select",
+    "fit_jointly", "nominal_scores", "point_closures", "select", "strength_intervals",
 ]  # fmt: skip
 
 
@@ -344,6 +344,9 @@ class JointFit:
     strengths: dict[str, object]
     """The calibrated strengths of the factors that matter (the others are nominal; a
     switch's is ``None``, on)."""
+    strength_interval: dict[str, tuple[float, float]]
+    """Numeric factor -> the range of its tried strengths that S* cannot tell from the
+    calibrated one (:func:`strength_intervals`)."""
     closure: float
     """Share of the gap S* closes."""
     closure_interval: tuple[float, float]
@@ -393,7 +396,7 @@ class JointFit:
     def to_json(self) -> dict:
         """Plain JSON (strengths as given, intervals as lists)."""
         out = dataclasses.asdict(self)
-        for key in ("reset_interval", "shapley_interval"):
+        for key in ("reset_interval", "shapley_interval", "strength_interval"):
             out[key] = {k: list(v) for k, v in out[key].items()}
         out["closure_interval"] = list(self.closure_interval)
         out["unexplained"] = self.unexplained
@@ -413,6 +416,7 @@ class JointFit:
 
         return cls(
             factors=dict(data["factors"]), strengths=dict(data["strengths"]),
+            strength_interval=pairs(data.get("strength_interval", {})),
             closure=number(data["closure"]),
             closure_interval=(number(data["closure_interval"][0]),
                               number(data["closure_interval"][1])),
@@ -459,6 +463,29 @@ def attribute(
     return reset, reset_interval, point, intervals, assignment(kept), full
 
 
+def strength_intervals(
+    factors: Sequence[Factor], calibrated: Assignment, value: Value, evaluate: Evaluate
+) -> dict[str, tuple[float, float]]:
+    """Each numeric factor's strengths that S* cannot tell apart from the calibrated one.
+
+    Every tried strength of the factor, the others held at S*, whose closure falls short of
+    S*'s by a group-bootstrap interval that includes 0; the range of those strengths (at the
+    resolution of the grid tried). Switches and choices get none.
+    """
+    strengths = dict(calibrated)
+    out = {}
+    for factor in factors:
+        current = strengths.get(factor.name, NOMINAL)
+        numeric = [o for o in factor.options if isinstance(o, int | float)]
+        if not isinstance(current, int | float) or len(numeric) < 2:
+            continue
+        values = evaluate([assignment({**strengths, factor.name: o}) for o in numeric])
+        close = [o for o, v in zip(numeric, values, strict=True)
+                 if _interval(value.replicates - v.replicates)[0] <= 0 or o == current]  # fmt: skip
+        out[factor.name] = (float(min(close)), float(max(close)))
+    return out
+
+
 def fit_jointly(
     factors: Sequence[Factor],
     evaluate: Evaluate,
@@ -495,8 +522,10 @@ def fit_jointly(
     reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
         calibrated, value, cached, matters=matters
     )
+    intervals = strength_intervals(factors, kept, full, cached)
     return JointFit(
         factors={f.name: f.stage for f in factors}, strengths=dict(kept),
+        strength_interval=intervals,
         closure=full.closure, closure_interval=_interval(full.replicates),
         reset=reset, reset_interval=reset_interval, shapley=shapley,
         shapley_interval=shapley_interval, path=path + steps, sets=len(memo),

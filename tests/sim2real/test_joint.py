@@ -101,6 +101,11 @@ def test_attribution_sums_to_the_calibrated_closure(scene):
         assert low <= fit.shapley[name] <= high and low > 0
     lo, hi = fit.closure_interval
     assert lo <= fit.closure <= hi + 1e-9
+    for name in ("shift", "spread"):  # numeric strengths get the range S* cannot tell apart
+        low, high = fit.strength_interval[name]
+        assert low <= PLANTED[name] <= high
+    assert fit.strength_interval["shift"] != (0.5, 2.0)  # the grid's ends are told apart
+    assert "switch" not in fit.strength_interval
     shares = fit.stage_shares()
     assert set(shares) == {"physics", "camera", "scene"}
     assert "unexplained" in fit.sentence() and "shift at 1.0" in fit.sentence()

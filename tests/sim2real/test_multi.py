@@ -46,7 +46,8 @@ def test_multi_sets_draw_the_texture_family_and_the_backdrop_too():
 
 def _joint(shapley: dict[str, float], stages: dict[str, str]) -> JointFit:
     return JointFit(
-        factors=stages, strengths=dict.fromkeys(shapley, 1.0), closure=sum(shapley.values()),
+        factors=stages, strengths=dict.fromkeys(shapley, 1.0), strength_interval={},
+        closure=sum(shapley.values()),
         closure_interval=(0.0, 1.0), reset=dict(shapley),
         reset_interval=dict.fromkeys(shapley, (0.0, 1.0)), shapley=shapley,
         shapley_interval=dict.fromkeys(shapley, (0.0, 1.0)), path=[], sets=9,
