@@ -103,10 +103,22 @@ from simulator.cloth.material import WANG54, MaterialSet
 from simulator.threads import use_process_threads
 
 __all__ = [
-    "COMPARISON_RULE", "CloneOutputs", "Prediction", "TrainedRun", "VideoClips", "clone_sheet",
-    "clone_video", "comparison_classes", "comparison_rule", "display_frames", "find_run",
-    "grid_neighbours", "load_checked_classifier", "predict_video", "run",
-]  # fmt: skip
+    "COMPARISON_RULE",
+    "CloneOutputs",
+    "Prediction",
+    "TrainedRun",
+    "VideoClips",
+    "clone_sheet",
+    "clone_video",
+    "comparison_classes",
+    "comparison_rule",
+    "display_frames",
+    "find_run",
+    "grid_neighbours",
+    "load_checked_classifier",
+    "predict_video",
+    "run",
+]
 
 
 def comparison_rule(material_set: MaterialSet = WANG54) -> str:
@@ -297,9 +309,13 @@ def display_frames(clips: VideoClips, count: int, fps: float, size: int) -> np.n
     ratio = video.fps / fps
     needed = min(video.frame_count, math.floor((count - 1) * ratio + 1e-9) + 1)
     reader = VideoClips(
-        video.path, fps=video.fps, clip_len=needed, clip_stride=1, target_fps=video.fps,
+        video.path,
+        fps=video.fps,
+        clip_len=needed,
+        clip_stride=1,
+        target_fps=video.fps,
         size=size,
-    )  # fmt: skip
+    )
     frames = reader.read_frames(0)
     index = np.minimum(np.floor(np.arange(count) * ratio + 1e-9).astype(int), needed - 1)
     return frames[index]
@@ -315,9 +331,13 @@ def predict_video(
     """Class probabilities of every clip, averaged, and their scores (the module's class grid)."""
     grid = module_grid(module)
     logits, _ = predict(
-        module, clips, batch_size=batch_size, device=device, desc="clips",
+        module,
+        clips,
+        batch_size=batch_size,
+        device=device,
+        desc="clips",
         class_count=grid.num_classes,
-    )  # fmt: skip
+    )
     probs = logits.double().softmax(dim=1).mean(dim=0)
     scores = {k: float(v[0]) for k, v in material_scores(probs[None], grid).items()}
     scores["predicted_class"] = int(scores["predicted_class"])
@@ -393,17 +413,29 @@ def _checked(cfg: DictConfig) -> dict:
     clip_stride = clip_len if cfg.clip_stride is None else cfg.clip_stride
     clip_stride = check_int(clip_stride, "clip_stride", 1)
     clips = VideoClips(
-        cfg.video, fps=video_fps, clip_len=clip_len, clip_stride=clip_stride,
-        target_fps=trained.spec.preset.fps, size=trained.spec.camera.height, max_clips=max_clips,
-    )  # fmt: skip
+        cfg.video,
+        fps=video_fps,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        target_fps=trained.spec.preset.fps,
+        size=trained.spec.camera.height,
+        max_clips=max_clips,
+    )
     module = load_checked_classifier(trained)
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     return {
-        "spec": spec, "trained": trained, "clips": clips, "module": module,
-        "device": torch.device(device), "batch_size": batch_size, "threads": threads,
-        "sheet_frames": sheet_frames, "out_dir": Path(cfg.out_dir), "target": target,
-    }  # fmt: skip
+        "spec": spec,
+        "trained": trained,
+        "clips": clips,
+        "module": module,
+        "device": torch.device(device),
+        "batch_size": batch_size,
+        "threads": threads,
+        "sheet_frames": sheet_frames,
+        "out_dir": Path(cfg.out_dir),
+        "target": target,
+    }
 
 
 CLONE_TARGETS = ("cloth", "skirt")
@@ -417,10 +449,14 @@ def _skirt_clone(spec: DatasetSpec, classes, material_set: MaterialSet, unit: Wo
 
     fps = spec.preset.fps
     return clone_skirt(
-        material_set.materials(list(classes)), level=spec.scenario.resolution_level,
-        seconds=(spec.frames_per_sim - 1) / fps, fps=fps, size=spec.camera.height,
-        seed=unit.sims[0].seed, on_frame=on_step,
-    )  # fmt: skip
+        material_set.materials(list(classes)),
+        level=spec.scenario.resolution_level,
+        seconds=(spec.frames_per_sim - 1) / fps,
+        fps=fps,
+        size=spec.camera.height,
+        seed=unit.sims[0].seed,
+        on_frame=on_step,
+    )
 
 
 def _one_scene(spec: DatasetSpec) -> WorkUnit:
@@ -435,9 +471,12 @@ def _one_scene(spec: DatasetSpec) -> WorkUnit:
 def _class_entry(class_id: int, probability: float, material_set: MaterialSet, **extra) -> dict:
     stretch, bend = material_set.multipliers(class_id)
     return {
-        "class": int(class_id), "probability": float(probability),
-        "stretch_multiplier": stretch, "bend_multiplier": bend, **extra,
-    }  # fmt: skip
+        "class": int(class_id),
+        "probability": float(probability),
+        "stretch_multiplier": stretch,
+        "bend_multiplier": bend,
+        **extra,
+    }
 
 
 def _report(
@@ -534,9 +573,15 @@ def run(cfg: DictConfig) -> CloneOutputs:
             rendered.append(skirt_frames[b, first:stop])
             continue
         frames, _ = render_frames(
-            spec, seq, b, sim, first, stop, capsules=capsules,
+            spec,
+            seq,
+            b,
+            sim,
+            first,
+            stop,
+            capsules=capsules,
             rng=np.random.default_rng([sim.seed, _RENDER_STREAM]),
-        )  # fmt: skip
+        )
         rendered.append(frames)
     fps = spec.preset.fps
     shown = stop - first

@@ -113,9 +113,15 @@ def run(cfg: DictConfig) -> DemoOutputs:
     with _progress("render", "frame") as on_frames:
         for b, sim in enumerate(unit.sims):
             frames, _ = render_frames(
-                spec, seq, b, sim, first, stop, capsules=capsules,
+                spec,
+                seq,
+                b,
+                sim,
+                first,
+                stop,
+                capsules=capsules,
                 rng=np.random.default_rng([sim.seed, _RENDER_STREAM]),
-            )  # fmt: skip
+            )
             clips.append(frames)
             on_frames(len(frames) * (b + 1), len(frames) * len(unit.sims))
 

@@ -56,9 +56,14 @@ class Recording:
     def preset(self, name: str) -> SizePreset:
         """One simulation per class in one rollout, nothing held out (no splits)."""
         return SizePreset(
-            name, sims_per_class=1, clips_per_sim=1, val_sims_per_class=0,
-            test_sims_per_class=0, frames_per_clip=self.shown, fps=self.fps,
-        )  # fmt: skip
+            name,
+            sims_per_class=1,
+            clips_per_sim=1,
+            val_sims_per_class=0,
+            test_sims_per_class=0,
+            frames_per_clip=self.shown,
+            fps=self.fps,
+        )
 
     def check_memory(self, spec: DatasetSpec, instances: int) -> None:
         """Refuse a recording of ``instances`` cloths of ``spec`` that memory cannot hold."""

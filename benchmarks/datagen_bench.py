@@ -60,9 +60,13 @@ def render_fps(spec, clips: int = 20) -> float:
         for i in range(clips + 2):
             start = time.perf_counter()
             renderer.render_clip(
-                seq.pos[i % 2, :frames], seq.tri_indices, seq.uv, texture, background,
+                seq.pos[i % 2, :frames],
+                seq.tri_indices,
+                seq.uv,
+                texture,
+                background,
                 rng=np.random.default_rng(i),
-            )  # fmt: skip
+            )
             if i >= 2:  # the first clips warm up the GL pipeline
                 times.append(time.perf_counter() - start)
     return frames / statistics.median(times)
@@ -85,9 +89,12 @@ def main(argv: list[str] | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         generate_dataset(
-            spec, Path(tmp) / "data", n_jobs=args.jobs, max_units=count,
+            spec,
+            Path(tmp) / "data",
+            n_jobs=args.jobs,
+            max_units=count,
             mesh_cache=Path(tmp) / "cache",
-        )  # fmt: skip
+        )
         seconds = time.perf_counter() - start
     clips = count * spec.unit_size * spec.preset.clips_per_sim
     clips_per_min = clips / seconds * 60

@@ -101,8 +101,11 @@ def paired_effect_size(planted, twin, covariates: np.ndarray | None = None) -> d
 
     def standardised(change, a, b, ddof):
         spread = np.sqrt(0.5 * (a.var(axis=0, ddof=ddof) + b.var(axis=0, ddof=ddof)))
-        return np.where(spread > 0, change / np.where(spread > 0, spread, 1.0),
-                        np.where(change > 0, np.inf, 0.0))  # fmt: skip
+        return np.where(
+            spread > 0,
+            change / np.where(spread > 0, spread, 1.0),
+            np.where(change > 0, np.inf, 0.0),
+        )
 
     if covariates is not None and len(covariates) != len(videos):
         raise ValueError(f"covariates: {len(covariates)} rows for {len(videos)} videos")
@@ -118,8 +121,9 @@ def paired_effect_size(planted, twin, covariates: np.ndarray | None = None) -> d
             best = {"d": float(d[j]), "rung": rung, "feature": j}
         if covariates is not None:
             fit = covariates @ np.linalg.lstsq(covariates, b, rcond=None)[0]
-            adjusted = max(adjusted, float(
-                standardised(change, a - fit, b - fit, covariates.shape[1]).max()))  # fmt: skip
+            adjusted = max(
+                adjusted, float(standardised(change, a - fit, b - fit, covariates.shape[1]).max())
+            )
     out = {**best, "per_rung": per_rung}
     if covariates is not None:
         out["d_adjusted"] = adjusted
@@ -163,16 +167,30 @@ def frames_digest(folder: Path) -> str:
     return digest.hexdigest()
 
 
-def _row(tag: str, seed: int, identical: bool, detection: dict, size: dict,
-         result: dict | None = None, name: str | None = None) -> dict:
+def _row(
+    tag: str,
+    seed: int,
+    identical: bool,
+    detection: dict,
+    size: dict,
+    result: dict | None = None,
+    name: str | None = None,
+) -> dict:
     row = {
-        "effect": tag, "seed": seed, "identical_to_twin": identical,
-        "gap_p": detection["gap_p"], "gap": bool(detection["detected"]),
-        "rungs": detection["rungs"], "named": None, "rank": None, "closure": None,
-        "effect_size": size.get("d"), "effect_size_feature": size.get("name"),
+        "effect": tag,
+        "seed": seed,
+        "identical_to_twin": identical,
+        "gap_p": detection["gap_p"],
+        "gap": bool(detection["detected"]),
+        "rungs": detection["rungs"],
+        "named": None,
+        "rank": None,
+        "closure": None,
+        "effect_size": size.get("d"),
+        "effect_size_feature": size.get("name"),
         "effect_size_per_rung": size.get("per_rung"),
         "effect_size_adjusted": size.get("d_adjusted"),
-    }  # fmt: skip
+    }
     if result is not None:
         ranking = result.ranking
         row["named"] = ranking.top if ranking.explained else "unexplained"
@@ -192,9 +210,10 @@ def _table(rows: list[dict], needed: float) -> str:
     ]
     for r in rows:
         size = (
-            "–" if r["effect_size"] is None
+            "–"
+            if r["effect_size"] is None
             else f"{r['effect_size']:.3f} ({r['effect_size_feature']})"
-        )  # fmt: skip
+        )
         closure = "–" if r["closure"] is None else f"{r['closure']:.0%}"
         adjusted = r.get("effect_size_adjusted")
         adjusted = "–" if adjusted is None else f"{adjusted:.3f}"
@@ -212,10 +231,12 @@ def summarise(rows: list[dict]) -> dict:
     for tag in dict.fromkeys(r["effect"] for r in rows):
         mine = [r for r in rows if r["effect"] == tag]
         sizes = [r["effect_size"] for r in mine if r["effect_size"] is not None]
-        adjusted = [r["effect_size_adjusted"] for r in mine
-                    if r.get("effect_size_adjusted") is not None]  # fmt: skip
+        adjusted = [
+            r["effect_size_adjusted"] for r in mine if r.get("effect_size_adjusted") is not None
+        ]
         out[tag] = {
-            "sets": len(mine), "gap_found": sum(r["gap"] for r in mine),
+            "sets": len(mine),
+            "gap_found": sum(r["gap"] for r in mine),
             "named_first": sum(r["named"] == tag.split("=")[0] for r in mine),
             "diagnosed": sum(r["named"] is not None for r in mine),
             "identical_to_twin": sum(r["identical_to_twin"] for r in mine),
@@ -223,7 +244,7 @@ def summarise(rows: list[dict]) -> dict:
             "effect_size_median": float(np.median(sizes)) if sizes else None,
             "effect_size_max": float(max(sizes)) if sizes else None,
             "effect_size_adjusted_max": float(max(adjusted)) if adjusted else None,
-        }  # fmt: skip
+        }
     return out
 
 
@@ -242,8 +263,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--mesh-cache", default="data/mesh_cache")
     parser.add_argument("--n-jobs", type=int, default=2)
     parser.add_argument("--out", default="outputs/detection_limits")
-    parser.add_argument("--diagnose", action="store_true",
-                        help="also run the whole diagnosis on every planted set (slow)")
+    parser.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="also run the whole diagnosis on every planted set (slow)",
+    )
     args = parser.parse_args(argv)
     use_process_threads(1)
     from sim2real.candidates import candidate_library
@@ -265,10 +289,15 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     out = Path(args.out)
     common = {
-        "run": args.run, "data_dir": args.data_dir, "cache_dir": out / "cache",
-        "mesh_cache": args.mesh_cache, "budget": budget, "candidates": "all",
-        "n_jobs": args.n_jobs, "progress": False,
-    }  # fmt: skip
+        "run": args.run,
+        "data_dir": args.data_dir,
+        "cache_dir": out / "cache",
+        "mesh_cache": args.mesh_cache,
+        "budget": budget,
+        "candidates": "all",
+        "n_jobs": args.n_jobs,
+        "progress": False,
+    }
     start = time.perf_counter()
     rows = []
     total = args.seeds * (1 + len(effects))
@@ -278,15 +307,24 @@ def main(argv: list[str] | None = None) -> None:
         spent = time.perf_counter() - start
         left = spent / len(rows) * (total - len(rows))
         print(json.dumps(row), flush=True)
-        print(f"[{len(rows)}/{total}] {spent / 60:.1f} min, about {left / 60:.0f} min left",
-              file=sys.stderr, flush=True)  # fmt: skip
+        print(
+            f"[{len(rows)}/{total}] {spent / 60:.1f} min, about {left / 60:.0f} min left",
+            file=sys.stderr,
+            flush=True,
+        )
 
     def sealed(folder: Path, seed: int, planted: list[dict]) -> Path:
         if not (folder / "labels.csv").is_file():
             answer = {"seed": seed, "kind": "planted" if planted else "twin", "effects": planted}
-            seal_set(folder, base=base, seed=seed, videos=args.videos, answer=answer,
-                     answer_path=out / "answers" / f"{folder.name}.json",
-                     overwrite=True)  # fmt: skip
+            seal_set(
+                folder,
+                base=base,
+                seed=seed,
+                videos=args.videos,
+                answer=answer,
+                answer_path=out / "answers" / f"{folder.name}.json",
+                overwrite=True,
+            )
         return folder
 
     # The first twin's diagnosis builds S and S' and fixes the box for every set.
@@ -294,8 +332,11 @@ def main(argv: list[str] | None = None) -> None:
     reference = _diagnosed(out / "reports" / first.name, {**common, "real_dir": first})
     inputs = reference.inputs
     draws = nominal_draws(inputs, 2, n_jobs=args.n_jobs)
-    settings = {"n_perm": inputs.budget_settings["n_perm"], "seed": inputs.seed,
-                "alpha": inputs.alpha}  # fmt: skip
+    settings = {
+        "n_perm": inputs.budget_settings["n_perm"],
+        "seed": inputs.seed,
+        "alpha": inputs.alpha,
+    }
 
     def features(folder: Path):
         return report_real_features(dataclasses.replace(inputs, real_dir=str(folder)))
@@ -329,11 +370,19 @@ def main(argv: list[str] | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     table = _table(rows, needed)
     (out / "results.md").write_text(table)
-    (out / "results.json").write_text(json.dumps(
-        {"needed_effect_size": needed, "summary": summary, "sets": rows}, indent=2))  # fmt: skip
+    (out / "results.json").write_text(
+        json.dumps({"needed_effect_size": needed, "summary": summary, "sets": rows}, indent=2)
+    )
     print(table)
-    print(json.dumps({"needed_effect_size": round(needed, 3), "summary": summary,
-                      "minutes": round((time.perf_counter() - start) / 60, 1)}))  # fmt: skip
+    print(
+        json.dumps(
+            {
+                "needed_effect_size": round(needed, 3),
+                "summary": summary,
+                "minutes": round((time.perf_counter() - start) / 60, 1),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

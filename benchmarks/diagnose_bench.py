@@ -37,16 +37,16 @@ def _random_run(folder: Path) -> Path:
 
     config = {
         "_target_": "models.components.video_nets.CNNLSTMNet",
-        "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
-                    "name": "alexnet5"},
+        "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder", "name": "alexnet5"},
         "num_classes": CLASS_COUNT,
-    }  # fmt: skip
+    }
     torch.manual_seed(0)
     module = MaterialClassifierModule(instantiate(config), net_config=config)
     path = folder / "run" / "checkpoints" / "best.ckpt"
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()},
-               path)  # fmt: skip
+    torch.save(
+        {"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()}, path
+    )
     return folder / "run"
 
 
@@ -75,10 +75,15 @@ def main() -> None:
             seal_set(real, base=spec, seed=args.seed, videos=args.videos, overwrite=True)
         seal_minutes = (time.perf_counter() - start) / 60
         kwargs = {
-            "real_dir": real, "run": run, "data_dir": work / "data", "cache_dir": work / "cache",
-            "mesh_cache": work / "meshes", "budget": Budget(), "candidates": "all",
+            "real_dir": real,
+            "run": run,
+            "data_dir": work / "data",
+            "cache_dir": work / "cache",
+            "mesh_cache": work / "meshes",
+            "budget": Budget(),
+            "candidates": "all",
             "n_jobs": args.jobs,
-        }  # fmt: skip
+        }
         start = time.perf_counter()
         result = run_diagnosis(out_dir=work / "report", **kwargs)
         minutes = (time.perf_counter() - start) / 60
@@ -91,13 +96,22 @@ def main() -> None:
             f"seal {seal_minutes:.1f} min; diagnose {minutes:.1f} min (split, worker-minutes "
             f"for generate/features of candidate sets: {split}); rerun {rerun:.2f} min"
         )
-        print(json.dumps({
-            "diagnose_minutes": round(minutes, 2), "rerun_minutes": round(rerun, 2),
-            "seal_minutes": round(seal_minutes, 2), "candidate_sets": result.sets["total"],
-            "clips_generated": clips, "real_clips": result.inputs.real_clips,
-            "split_minutes": split, "jobs": args.jobs, "top": result.ranking.top,
-            "explained": result.ranking.explained,
-        }))  # fmt: skip
+        print(
+            json.dumps(
+                {
+                    "diagnose_minutes": round(minutes, 2),
+                    "rerun_minutes": round(rerun, 2),
+                    "seal_minutes": round(seal_minutes, 2),
+                    "candidate_sets": result.sets["total"],
+                    "clips_generated": clips,
+                    "real_clips": result.inputs.real_clips,
+                    "split_minutes": split,
+                    "jobs": args.jobs,
+                    "top": result.ranking.top,
+                    "explained": result.ranking.explained,
+                }
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -30,9 +30,20 @@ LANES = 8
 PRODUCTS = 18
 """Products in a row per instance (a typical PCG solve at the production tolerance)."""
 STENCIL = (
-    (0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1),
-    (2, 1), (1, 2), (-1, -2), (-2, -1), (1, -1), (-1, 1),
-)  # fmt: skip
+    (0, 0),
+    (1, 0),
+    (-1, 0),
+    (0, 1),
+    (0, -1),
+    (1, 1),
+    (-1, -1),
+    (2, 1),
+    (1, 2),
+    (-1, -2),
+    (-2, -1),
+    (1, -1),
+    (-1, 1),
+)
 """Grid offsets of the 13 slots of a row (missing neighbours point at the row itself)."""
 
 

@@ -49,21 +49,28 @@ def resolution_steps(report_dir: Path, answer: dict, *, n_jobs: int = 1) -> dict
     values = reopened.values(steps, n_jobs=n_jobs)
     rows = []
     for i, (step, rungs, value) in enumerate(zip(steps, measured, values, strict=True)):
-        rows.append({
-            "added": "nominal S" if i == 0 else effects[i - 1]["name"],
-            "effects": len(step), "closure": value.closure,
-            "rungs": {r: {k: float(v) for k, v in m.items()} for r, m in rungs.items()},
-        })  # fmt: skip
+        rows.append(
+            {
+                "added": "nominal S" if i == 0 else effects[i - 1]["name"],
+                "effects": len(step),
+                "closure": value.closure,
+                "rungs": {r: {k: float(v) for k, v in m.items()} for r, m in rungs.items()},
+            }
+        )
     divergences = {r: [row["rungs"][r]["divergence"] for row in rows] for r in result.scored_rungs}
     return {
-        "report": str(report_dir), "seed": answer.get("seed"), "kind": answer.get("kind"),
+        "report": str(report_dir),
+        "seed": answer.get("seed"),
+        "kind": answer.get("kind"),
         "steps": rows,
         "closure_monotone": all(b["closure"] >= a["closure"] for a, b in itertools.pairwise(rows)),
-        "divergence_monotone": {r: all(b <= a for a, b in itertools.pairwise(d))
-                                for r, d in divergences.items()},
-        "auc_saturated_steps": sum(all(m["auc"] >= 0.99 for m in row["rungs"].values())
-                                   for row in rows),
-    }  # fmt: skip
+        "divergence_monotone": {
+            r: all(b <= a for a, b in itertools.pairwise(d)) for r, d in divergences.items()
+        },
+        "auc_saturated_steps": sum(
+            all(m["auc"] >= 0.99 for m in row["rungs"].values()) for row in rows
+        ),
+    }
 
 
 def _table(out: dict) -> str:
@@ -74,18 +81,22 @@ def _table(out: dict) -> str:
         cells = []
         for r in rungs:
             m = row["rungs"][r]
-            cells += [f"{m['auc']:.3f}", "–" if not math.isfinite(m["divergence"])
-                      else f"{m['divergence']:.2f}"]  # fmt: skip
-        lines.append(f"| {row['added']} | {100 * row['closure']:.0f} % | " + " | ".join(cells)
-                     + " |")  # fmt: skip
+            cells += [
+                f"{m['auc']:.3f}",
+                "–" if not math.isfinite(m["divergence"]) else f"{m['divergence']:.2f}",
+            ]
+        lines.append(
+            f"| {row['added']} | {100 * row['closure']:.0f} % | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines)
 
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> dict:
     """Command line (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.gap_resolution",
-                                     description=__doc__.split("\n")[0])  # fmt: skip
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.gap_resolution", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("--report", required=True, help="a diagnosis's report folder")
     parser.add_argument("--answer", required=True, help="the sealed set's answer file")
     parser.add_argument("--n-jobs", type=int, default=1)

@@ -38,7 +38,7 @@ MEASURES = (
     ("ranking stability (Kendall tau, 3 simulation seeds)", "kendall_tau", ">= 0.8"),
     ("withheld effect picked up by the sim-vs-sim test", "truth_detectable", "–"),
     ("top-3 where it was picked up", "top3_detectable", "–"),
-)  # fmt: skip
+)
 
 
 def _rows(round_: int) -> list[dict]:

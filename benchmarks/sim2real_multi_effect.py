@@ -51,8 +51,10 @@ the first one builds the candidate library)."""
 def _rows(folder: Path) -> list[dict]:
     path = folder / "validation.json"
     if not path.is_file():
-        raise InputError(f"--validation: {folder} holds no validation.json; give the --out "
-                         "folder of a finished sim2real.study.validate run")  # fmt: skip
+        raise InputError(
+            f"--validation: {folder} holds no validation.json; give the --out "
+            "folder of a finished sim2real.study.validate run"
+        )
     try:
         rows = json.loads(path.read_text())["sets"]
     except (ValueError, KeyError, TypeError) as err:
@@ -68,8 +70,10 @@ def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
     shrink = report.get("shrink") or {}
     every = shrink.get("score_correlations")
     if every is None:
-        raise InputError("--loop: the report has no shrink section with every score's "
-                         "correlations; run python -m sim2real.shrink on it first")  # fmt: skip
+        raise InputError(
+            "--loop: the report has no shrink section with every score's "
+            "correlations; run python -m sim2real.shrink on it first"
+        )
     out = {}
     for score, column in pairs:
         try:
@@ -81,11 +85,14 @@ def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
                 f"columns=[...,{column}]"
             ) from None
         out[f"{score} vs {column}"] = {
-            "before": before["pearson"], "before_ci": before["pearson_ci"],
-            "after": after["pearson"], "after_ci": after["pearson_ci"],
-            "gain": None if None in (before["pearson"], after["pearson"])
+            "before": before["pearson"],
+            "before_ci": before["pearson_ci"],
+            "after": after["pearson"],
+            "after_ci": after["pearson_ci"],
+            "gain": None
+            if None in (before["pearson"], after["pearson"])
             else after["pearson"] - before["pearson"],
-        }  # fmt: skip
+        }
     return out
 
 
@@ -94,39 +101,51 @@ def figures(rows: list[dict], loop: dict | None) -> dict:
     summary = summarise(rows)
     minutes = [r["minutes"] for r in rows if r.get("minutes") is not None]
     out = {
-        "sets": {"multi": sum(r["kind"] == "multi" for r in rows),
-                 "twin": sum(r["kind"] == "twin" for r in rows)},
+        "sets": {
+            "multi": sum(r["kind"] == "multi" for r in rows),
+            "twin": sum(r["kind"] == "twin" for r in rows),
+        },
         "seeds": sorted(int(r["seed"]) for r in rows),
         "factor_f1": summary["factor_f1"],
         "factor_f1_matter": summary["factor_f1_matter"],
         "factor_precision": summary["factor_precision"],
         "factor_recall": summary["factor_recall"],
-        "stage_share_error_pts": {"median": summary["stage_share_error_pts_median"],
-                                  "max": summary["stage_share_error_pts_max"]},
+        "stage_share_error_pts": {
+            "median": summary["stage_share_error_pts_median"],
+            "max": summary["stage_share_error_pts_max"],
+        },
         "twin_false_attribution": summary["twin_false_attribution"],
-        "quick_minutes": {"first": minutes[0] if minutes else None,
-                          "median": float(np.median(minutes)) if minutes else None,
-                          "max": max(minutes) if minutes else None},
+        "quick_minutes": {
+            "first": minutes[0] if minutes else None,
+            "median": float(np.median(minutes)) if minutes else None,
+            "max": max(minutes) if minutes else None,
+        },
         "independent_engine": loop,
         "independent_engine_r_gain_min": None,
         "independent_engine_r_after_min": None,
-    }  # fmt: skip
+    }
     if loop:
         gains = [v["gain"] for v in loop.values()]
         afters = [v["after"] for v in loop.values()]
         out["independent_engine_r_gain_min"] = None if None in gains else min(gains)
         out["independent_engine_r_after_min"] = None if None in afters else min(afters)
     measured = {
-        **out, "stage_share_error_pts_max": out["stage_share_error_pts"]["max"],
-        "quick_minutes": out["quick_minutes"]["max"], "multi_sets": out["sets"]["multi"],
+        **out,
+        "stage_share_error_pts_max": out["stage_share_error_pts"]["max"],
+        "quick_minutes": out["quick_minutes"]["max"],
+        "multi_sets": out["sets"]["multi"],
         "twin_sets": out["sets"]["twin"],
-    }  # fmt: skip
+    }
     out["targets"] = {
-        key: {"target": f"{op} {bound:g}", "measured": measured[key],
-              "met": None if measured[key] is None
-              else (measured[key] >= bound if op == ">=" else measured[key] <= bound)}
+        key: {
+            "target": f"{op} {bound:g}",
+            "measured": measured[key],
+            "met": None
+            if measured[key] is None
+            else (measured[key] >= bound if op == ">=" else measured[key] <= bound),
+        }
         for key, (op, bound) in TARGETS.items()
-    }  # fmt: skip
+    }
     return out
 
 
@@ -140,19 +159,29 @@ def table(result: dict) -> str:
         lines.append(f"| {key} | {t['target']} | {shown} | {met} |")
     sets = result["sets"]
     lines.append("")
-    lines.append(f"{sets['multi']} multi-effect and {sets['twin']} effect-free sets (seeds "
-                 f"{min(result['seeds'])}-{max(result['seeds'])}); quick_minutes: the longest "
-                 "diagnosis of the round (the first builds the candidate library).")  # fmt: skip
+    lines.append(
+        f"{sets['multi']} multi-effect and {sets['twin']} effect-free sets (seeds "
+        f"{min(result['seeds'])}-{max(result['seeds'])}); quick_minutes: the longest "
+        "diagnosis of the round (the first builds the candidate library)."
+    )
     return "\n".join(lines) + "\n"
 
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--validation", type=Path, required=True,
-                        help="the --out folder of a scored multi/twin validation round")
-    parser.add_argument("--loop", type=Path, default=None,
-                        help="a diagnosis folder of independent-engine footage after shrink")
+    parser.add_argument(
+        "--validation",
+        type=Path,
+        required=True,
+        help="the --out folder of a scored multi/twin validation round",
+    )
+    parser.add_argument(
+        "--loop",
+        type=Path,
+        default=None,
+        help="a diagnosis folder of independent-engine footage after shrink",
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results")
     args = parser.parse_args(argv)
     rows = _rows(args.validation)
@@ -165,8 +194,9 @@ def main(argv: list[str] | None = None) -> dict:
     result = figures(rows, loop)
     check_output_dir(args.out, "--out")
     args.out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(args.out / "sim2real_multi_effect.json",
-                       (json.dumps(result, indent=1) + "\n").encode())  # fmt: skip
+    atomic_write_bytes(
+        args.out / "sim2real_multi_effect.json", (json.dumps(result, indent=1) + "\n").encode()
+    )
     atomic_write_bytes(args.out / "sim2real_multi_effect.md", table(result).encode())
     print(table(result))
     return result

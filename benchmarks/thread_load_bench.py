@@ -46,14 +46,15 @@ def workload(steps: int, backend: str = "kernels", batch: int = 1) -> float:
     """Wall seconds of ``steps`` backward-Euler steps of ``batch`` 32 x 32 wind cloths."""
     scene = ScenarioWind(resolution_level=3, settle_time=0.0, ramp_time=0.25)
     model, state, driver = scene.build(
-        ClothMaterial.from_classes([CLASS_ID] * batch), seeds=list(range(batch)),
+        ClothMaterial.from_classes([CLASS_ID] * batch),
+        seeds=list(range(batch)),
         wind_levels=[WIND_LEVEL] * batch,
-    )  # fmt: skip
-    static = NewtonSettings(max_iters=50, tol_dx=1e-9, cg_rtol=1e-6, cg_max_iters=1000,
-                            backend=backend)  # fmt: skip
+    )
+    static = NewtonSettings(
+        max_iters=50, tol_dx=1e-9, cg_rtol=1e-6, cg_max_iters=1000, backend=backend
+    )
     state, _ = solve_static(model, state, driver.control(0.0, state.pos), settings=static)
-    integrator = IntegratorBackwardEuler(NewtonSettings(max_iters=1, cg_rtol=1e-2,
-                                                        backend=backend))  # fmt: skip
+    integrator = IntegratorBackwardEuler(NewtonSettings(max_iters=1, cg_rtol=1e-2, backend=backend))
     start = time.perf_counter()
     for k in range(1, steps + 1):
         state, _ = integrator.step(model, state, driver.control(k * DT, state.pos), DT)
@@ -65,8 +66,18 @@ def _threads_arg(text: str) -> int | None:
 
 
 def _worker_args(args: argparse.Namespace, threads: str) -> list[str]:
-    return ["--threads", threads, "--steps", str(args.steps), "--repeats", str(args.repeats),
-            "--backend", args.backend, "--batch", str(args.batch)]  # fmt: skip
+    return [
+        "--threads",
+        threads,
+        "--steps",
+        str(args.steps),
+        "--repeats",
+        str(args.repeats),
+        "--backend",
+        args.backend,
+        "--batch",
+        str(args.batch),
+    ]
 
 
 def _child_env() -> dict:
@@ -74,16 +85,27 @@ def _child_env() -> dict:
 
 
 def _start_load(args: argparse.Namespace) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "benchmarks.thread_load_bench", "--load-worker",
-           *_worker_args(args, args.threads)]  # fmt: skip
-    return subprocess.Popen(cmd, env=_child_env(), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "benchmarks.thread_load_bench",
+        "--load-worker",
+        *_worker_args(args, args.threads),
+    ]
+    return subprocess.Popen(
+        cmd, env=_child_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
 
 
 def measure(args: argparse.Namespace, threads: str) -> dict:
     """Quiet and loaded medians for one thread setting (run in a fresh child process)."""
-    cmd = [sys.executable, "-m", "benchmarks.thread_load_bench", "--measure-worker",
-           *_worker_args(args, threads)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "benchmarks.thread_load_bench",
+        "--measure-worker",
+        *_worker_args(args, threads),
+    ]
     out = subprocess.run(cmd, env=_child_env(), check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -106,9 +128,15 @@ def _measure_worker(args: argparse.Namespace) -> None:
     finally:
         load.kill()
         load.wait()
-    print(json.dumps({
-        "threads": torch.get_num_threads(), "quiet_s": quiet, "loaded_s": loaded,
-    }))  # fmt: skip
+    print(
+        json.dumps(
+            {
+                "threads": torch.get_num_threads(),
+                "quiet_s": quiet,
+                "loaded_s": loaded,
+            }
+        )
+    )
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -141,15 +169,24 @@ def main(argv: list[str] | None = None) -> dict:
             "slowdown": loaded / quiet,
             "fair_slowdown": max(1.0, 2 * r["threads"] / cores),
         }
-    print(f"{cores} cores, {args.steps} steps of {args.batch} 32 x 32 wind cloth(s) on "
-          f"{args.backend}, medians of {args.repeats}")  # fmt: skip
+    print(
+        f"{cores} cores, {args.steps} steps of {args.batch} 32 x 32 wind cloth(s) on "
+        f"{args.backend}, medians of {args.repeats}"
+    )
     print(f"{'threads':<10}{'quiet s':>10}{'loaded s':>10}{'slowdown':>10}{'fair':>8}")
     for setting, r in rows.items():
         label = f"{setting} ({r['threads']})"
-        print(f"{label:<10}{r['quiet_median_s']:>10.2f}{r['loaded_median_s']:>10.2f}"
-              f"{r['slowdown']:>10.2f}{r['fair_slowdown']:>8.2f}")  # fmt: skip
-    result = {"cores": cores, "steps": args.steps, "backend": args.backend, "batch": args.batch,
-              "settings": rows}  # fmt: skip
+        print(
+            f"{label:<10}{r['quiet_median_s']:>10.2f}{r['loaded_median_s']:>10.2f}"
+            f"{r['slowdown']:>10.2f}{r['fair_slowdown']:>8.2f}"
+        )
+    result = {
+        "cores": cores,
+        "steps": args.steps,
+        "backend": args.backend,
+        "batch": args.batch,
+        "settings": rows,
+    }
     print(json.dumps(result))
     return result
 

@@ -61,8 +61,16 @@ def _median_rate(step, clips: int, steps: int, device: torch.device) -> float:
     return clips / statistics.median(times)
 
 
-def measure(method: str, *, batch: int, frames: int, size: int, steps: int,
-            device: torch.device, encoder: str = "alexnet5") -> dict:  # fmt: skip
+def measure(
+    method: str,
+    *,
+    batch: int,
+    frames: int,
+    size: int,
+    steps: int,
+    device: torch.device,
+    encoder: str = "alexnet5",
+) -> dict:
     """Train and inference clips/s of one method."""
     torch.manual_seed(0)
     module = _build(method, encoder).to(device)
@@ -119,11 +127,20 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"device: {label}; batch {args.batch} clips of {args.frames} x 3 x {args.size}^2")
     print(f"{'method':10s} {'train clips/s':>14s} {'infer clips/s':>14s} {'trainable':>10s}")
     for method in METHODS:
-        r = measure(method, batch=args.batch, frames=args.frames, size=args.size,
-                    steps=args.steps, device=device, encoder=args.encoder)  # fmt: skip
+        r = measure(
+            method,
+            batch=args.batch,
+            frames=args.frames,
+            size=args.size,
+            steps=args.steps,
+            device=device,
+            encoder=args.encoder,
+        )
         results[method] = r
-        print(f"{method:10s} {r['train_clips_per_s']:14.1f} {r['infer_clips_per_s']:14.1f} "
-              f"{r['params_trainable']:10d}")  # fmt: skip
+        print(
+            f"{method:10s} {r['train_clips_per_s']:14.1f} {r['infer_clips_per_s']:14.1f} "
+            f"{r['params_trainable']:10d}"
+        )
     summary = {
         "train_clips_per_s": round(results["cnn_lstm"]["train_clips_per_s"], 2),
         "infer_clips_per_s": round(results["cnn_lstm"]["infer_clips_per_s"], 2),

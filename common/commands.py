@@ -23,10 +23,20 @@ __all__ = ["INTERRUPTED", "hydra_command", "report_user_errors"]
 INTERRUPTED = "interrupted; rerun the same command to resume"
 """The line Ctrl-C ends a command with (exit status 130, as a shell reports SIGINT)."""
 
-_ENVIRONMENT_ERRNOS = frozenset({
-    errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR, errno.EISDIR,
-    errno.EDQUOT, errno.ENAMETOOLONG, errno.EFBIG, errno.EEXIST,
-})  # fmt: skip
+_ENVIRONMENT_ERRNOS = frozenset(
+    {
+        errno.ENOSPC,
+        errno.EROFS,
+        errno.EACCES,
+        errno.EPERM,
+        errno.ENOTDIR,
+        errno.EISDIR,
+        errno.EDQUOT,
+        errno.ENAMETOOLONG,
+        errno.EFBIG,
+        errno.EEXIST,
+    }
+)
 """File-system errors a user fixes (a full disk, a read-only or wrong destination)."""
 
 
@@ -62,10 +72,14 @@ def _user_error_in(exc: BaseException) -> BaseException | None:
     return None
 
 
-_CONFIG_ERRORS = frozenset({
-    "hydra.errors.ConfigCompositionException", "hydra.errors.MissingConfigException",
-    "hydra.errors.OverrideParseException", "omegaconf.errors.MissingMandatoryValue",
-})  # fmt: skip
+_CONFIG_ERRORS = frozenset(
+    {
+        "hydra.errors.ConfigCompositionException",
+        "hydra.errors.MissingConfigException",
+        "hydra.errors.OverrideParseException",
+        "omegaconf.errors.MissingMandatoryValue",
+    }
+)
 """Hydra's own refusals of a command line: an override that does not parse or fit."""
 
 

@@ -107,9 +107,7 @@ def check_targets(node: Any, field: str, allowed: Iterable[str]) -> None:
             for name, item in value.items():
                 name = str(name)
                 where = f"{key}.{name}" if key else name
-                if name == "_target_" and (
-                    not isinstance(item, str) or item not in names
-                ):
+                if name == "_target_" and (not isinstance(item, str) or item not in names):
                     raise InputError(
                         f"{field}: {where} is {item!r}, which is not one of the allowed "
                         f"targets: {', '.join(sorted(names))}"
@@ -277,9 +275,13 @@ def _describe(annotation: Any) -> str:
 def _noun(annotation: Any) -> str:
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     simple = {
-        int: "an integer", float: "a number", bool: "true or false", str: "text",
-        type(None): "null", Path: "a path",
-    }  # fmt: skip
+        int: "an integer",
+        float: "a number",
+        bool: "true or false",
+        str: "text",
+        type(None): "null",
+        Path: "a path",
+    }
     if annotation in simple:
         return simple[annotation]
     if origin in (tuple, list, Sequence):

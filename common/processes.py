@@ -45,9 +45,7 @@ def helper_process_setup() -> None:
     parent = os.getppid()
     if parent <= 1:  # already orphaned before this ran
         os._exit(1)
-    threading.Thread(
-        target=_watch_parent, args=(parent,), name="watch-parent", daemon=True
-    ).start()
+    threading.Thread(target=_watch_parent, args=(parent,), name="watch-parent", daemon=True).start()
 
 
 @contextlib.contextmanager

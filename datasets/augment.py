@@ -124,9 +124,11 @@ class TextureSwap:
             self.mode, np.random.default_rng([seed, _TEXTURE_SWAP_STREAM]), self.size
         )
         return retexture(
-            *(layers[name] for name in PASS_NAMES), coverage, layers["background"][0],
+            *(layers[name] for name in PASS_NAMES),
+            coverage,
+            layers["background"][0],
             texture,
-        )  # fmt: skip
+        )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -30,9 +30,14 @@ from .shards import ShardError, ShardReader, frames_sha256
 __all__ = ["ClothClipDataset", "ClothFrameDataset", "clip_tensor"]
 
 _META_KEYS = (
-    "stretch_index", "bend_index", "stretch_stiffness", "bend_stiffness", "density", "wind_level",
+    "stretch_index",
+    "bend_index",
+    "stretch_stiffness",
+    "bend_stiffness",
+    "density",
+    "wind_level",
     "clip_index",
-)  # fmt: skip
+)
 
 
 def clip_tensor(frames: np.ndarray) -> torch.Tensor:
@@ -223,9 +228,10 @@ class ClothFrameDataset(Dataset):
         )
         self.transform = transform
         self.index = [
-            (c, t) for c, record in enumerate(self.clips.records)
+            (c, t)
+            for c, record in enumerate(self.clips.records)
             for t in range(int(record["frame_count"]))
-        ]  # fmt: skip
+        ]
 
     def __len__(self) -> int:
         return len(self.index)

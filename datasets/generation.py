@@ -46,7 +46,7 @@ __all__ = [
     "run_unit",
     "sim_look",
     "simulate_unit",
-]  # fmt: skip
+]
 
 log = logging.getLogger(__name__)
 
@@ -106,9 +106,10 @@ def simulate_unit(
         material = spec.material_set.materials(classes)
     else:
         material = ClothMaterial.from_wang(
-            load_wang_material(spec.material_set.basis), stretch_mult=list(multipliers[0]),
+            load_wang_material(spec.material_set.basis),
+            stretch_mult=list(multipliers[0]),
             bend_mult=list(multipliers[1]),
-        )  # fmt: skip
+        )
     seq = simulate(
         spec.scenario,
         material,
@@ -138,9 +139,11 @@ def sim_look(spec: DatasetSpec, sim: SimulationPlan) -> tuple[np.ndarray, np.nda
         spec.texture_mode, np.random.default_rng([sim.seed, _TEXTURE_STREAM]), spec.texture_size
     )
     background = make_background(
-        np.random.default_rng([sim.seed, _BACKGROUND_STREAM]), spec.camera.width,
-        spec.camera.height, kinds=backdrop_kinds(spec.backdrop),
-    )  # fmt: skip
+        np.random.default_rng([sim.seed, _BACKGROUND_STREAM]),
+        spec.camera.width,
+        spec.camera.height,
+        kinds=backdrop_kinds(spec.backdrop),
+    )
     return texture, background
 
 
@@ -168,10 +171,18 @@ def render_frames(
     lead, trail = rolling_shutter_margins(spec, start, stop, seq.frame_count)
     frames = slice(start - lead, stop + trail)
     return renderer_for(spec).render_clip(
-        seq.pos[b, frames], seq.tri_indices, seq.uv, texture, background,
+        seq.pos[b, frames],
+        seq.tri_indices,
+        seq.uv,
+        texture,
+        background,
         capsules=None if capsules is None else capsules[b, frames],
-        rng=rng, coverage=True, passes=passes, lead=lead, trail=trail,
-    )  # fmt: skip
+        rng=rng,
+        coverage=True,
+        passes=passes,
+        lead=lead,
+        trail=trail,
+    )
 
 
 def rolling_shutter_margins(
@@ -198,9 +209,16 @@ def _sim_clips(spec: DatasetSpec, seq: MeshSequence, b: int, sim: SimulationPlan
     preset = spec.preset
     if spec.visual.frame_rate:
         frames, coverage = render_frames(
-            spec, seq, b, sim, spec.lead_in_frames, spec.frames_per_sim, capsules=capsules,
-            look=look, rng=np.random.default_rng([sim.seed, _CLIP_STREAM, 0]),
-        )  # fmt: skip
+            spec,
+            seq,
+            b,
+            sim,
+            spec.lead_in_frames,
+            spec.frames_per_sim,
+            capsules=capsules,
+            look=look,
+            rng=np.random.default_rng([sim.seed, _CLIP_STREAM, 0]),
+        )
         for k in range(preset.clips_per_sim):
             clip = slice(k * preset.frames_per_clip, (k + 1) * preset.frames_per_clip)
             yield frames[clip], coverage[clip]
@@ -208,10 +226,17 @@ def _sim_clips(spec: DatasetSpec, seq: MeshSequence, b: int, sim: SimulationPlan
     for k in range(preset.clips_per_sim):
         start = spec.lead_in_frames + k * preset.frames_per_clip
         yield render_frames(
-            spec, seq, b, sim, start, start + preset.frames_per_clip, capsules=capsules,
-            look=look, rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
+            spec,
+            seq,
+            b,
+            sim,
+            start,
+            start + preset.frames_per_clip,
+            capsules=capsules,
+            look=look,
+            rng=np.random.default_rng([sim.seed, _CLIP_STREAM, k]),
             passes=spec.store_passes,
-        )  # fmt: skip
+        )
 
 
 def render_unit(
@@ -237,9 +262,15 @@ def render_unit(
             layers = {**passes[0], "background": background[None]} if passes else None
             shard = f"{sim.split}-{unit.name}.tar"
             record = clip_record(
-                spec, sim, k, shard, frames.shape, frames_sha256(frames), coverage is not None,
+                spec,
+                sim,
+                k,
+                shard,
+                frames.shape,
+                frames_sha256(frames),
+                coverage is not None,
                 passes=layers is not None,
-            )  # fmt: skip
+            )
             out[sim.split].append((record["key"], record, frames, coverage, layers))
             if on_clip is not None:
                 on_clip()
@@ -455,9 +486,12 @@ class _Progress:
 
         clips = sum(len(u.sims) for u in pending) * spec.preset.clips_per_sim
         self.bar = tqdm(
-            total=clips, desc=f"generate {spec.motion}", unit="clip", smoothing=0.0,
+            total=clips,
+            desc=f"generate {spec.motion}",
+            unit="clip",
+            smoothing=0.0,
             disable=not enabled,
-        )  # fmt: skip
+        )
         self.rollouts: dict[int, float] = {}
 
     def __call__(self, kind: str, unit: int, step: int = 0, total: int = 0) -> None:

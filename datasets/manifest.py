@@ -36,9 +36,14 @@ from .shards import ShardError, verify_shard
 from .spec import DatasetSpec
 
 __all__ = [
-    "MANIFEST_SCHEMA", "SPLIT_PROTOCOLS", "Manifest", "clip_record", "legacy_class_grid",
-    "read_json", "write_json",
-]  # fmt: skip
+    "MANIFEST_SCHEMA",
+    "SPLIT_PROTOCOLS",
+    "Manifest",
+    "clip_record",
+    "legacy_class_grid",
+    "read_json",
+    "write_json",
+]
 
 SPLIT_PROTOCOLS = ("simulation", "sequence")
 """How clips are assigned to train/val/test:
@@ -54,11 +59,33 @@ SPLIT_PROTOCOLS = ("simulation", "sequence")
 
 MANIFEST_SCHEMA = 1
 CSV_COLUMNS = (
-    "key", "split", "shard", "class_id", "stretch_index", "bend_index", "stretch_mult",
-    "bend_mult", "stretch_stiffness", "bend_stiffness", "density", "motion", "wind_level",
-    "wind_speed", "texture_mode", "resolution_level", "effects", "seed", "sim_id",
-    "clip_index", "start_frame", "frame_count", "fps", "height", "width", "sha256",
-)  # fmt: skip
+    "key",
+    "split",
+    "shard",
+    "class_id",
+    "stretch_index",
+    "bend_index",
+    "stretch_mult",
+    "bend_mult",
+    "stretch_stiffness",
+    "bend_stiffness",
+    "density",
+    "motion",
+    "wind_level",
+    "wind_speed",
+    "texture_mode",
+    "resolution_level",
+    "effects",
+    "seed",
+    "sim_id",
+    "clip_index",
+    "start_frame",
+    "frame_count",
+    "fps",
+    "height",
+    "width",
+    "sha256",
+)
 
 
 def legacy_class_grid() -> dict:
@@ -257,4 +284,3 @@ def _deal_by_sequence(clips) -> list[dict]:
         order = np.random.default_rng([class_id, _SEQUENCE_DEAL_STREAM]).permutation(len(members))
         dealt += [{**members[i], "split": split} for i, split in zip(order, splits, strict=True)]
     return sorted(dealt, key=lambda c: c["key"])
-

@@ -358,9 +358,13 @@ class RealVideoDataset(Dataset):
                 log.warning(
                     "real video %s has %d frames at %.4g fps; one clip of %d frames at %.4g fps "
                     "needs %d: SKIPPED, it will be missing from the correlations",
-                    video.path, video.frame_count, video.fps, self.clip_len, self.target_fps,
+                    video.path,
+                    video.frame_count,
+                    video.fps,
+                    self.clip_len,
+                    self.target_fps,
                     needed,
-                )  # fmt: skip
+                )
             if max_clips_per_video is not None:
                 starts = starts[:max_clips_per_video]
             self.clips.extend((v, s) for s in starts)

@@ -89,5 +89,3 @@ def find_run(run: str | Path, data_dir: str | Path | None = None) -> TrainedRun:
     except Exception as err:  # unreadable JSON, a missing key, a bad field: not a spec
         raise InputError(f"data_dir: {spec_path} is not a dataset spec ({err})") from None
     return TrainedRun(checkpoint=checkpoint, data_dir=Path(data_dir), spec=spec)
-
-

@@ -152,9 +152,16 @@ def _digest(payload: Any) -> str:
 
 
 PHYSICS_KEYS = (
-    "motion", "scenario", "preset", "classes", "seed", "lead_in", "sim", "physics",
+    "motion",
+    "scenario",
+    "preset",
+    "classes",
+    "seed",
+    "lead_in",
+    "sim",
+    "physics",
     "sims_per_unit",
-)  # fmt: skip
+)
 """The spec entries that decide the simulated meshes (and so the mesh cache folder); a
 ``material_set`` other than :data:`~simulator.cloth.material.WANG54` decides them too."""
 

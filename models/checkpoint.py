@@ -80,15 +80,17 @@ def run_config_targets() -> tuple[str, ...]:
 
     return tuple(
         name
-        for name in sorted({
-            *_RUN_TARGETS,
-            *_subclasses_in(callbacks, Callback),
-            *_subclasses_in(loggers, Logger),
-            *_subclasses_in(torch.optim, torch.optim.Optimizer),
-            *_subclasses_in(torch.optim.lr_scheduler, torch.optim.lr_scheduler.LRScheduler),
-        })
+        for name in sorted(
+            {
+                *_RUN_TARGETS,
+                *_subclasses_in(callbacks, Callback),
+                *_subclasses_in(loggers, Logger),
+                *_subclasses_in(torch.optim, torch.optim.Optimizer),
+                *_subclasses_in(torch.optim.lr_scheduler, torch.optim.lr_scheduler.LRScheduler),
+            }
+        )
         if name.rsplit(".", 1)[-1] not in _RUNS_CALLABLES
-    )  # fmt: skip
+    )
 
 
 def _one_line(error: BaseException) -> str:

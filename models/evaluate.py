@@ -83,9 +83,17 @@ from .report import confusion_png, markdown_table, scatter_png, wind_label, writ
 from .scores import CORRELATED_SCORES, SCORE_NAMES, material_scores
 
 __all__ = [
-    "check_class_count", "checkpoint_class_count", "dataset_grid", "evaluate_real",
-    "evaluate_simulated", "evaluation_folder", "module_grid", "pick_device", "predict", "run",
-]  # fmt: skip
+    "check_class_count",
+    "checkpoint_class_count",
+    "dataset_grid",
+    "evaluate_real",
+    "evaluate_simulated",
+    "evaluation_folder",
+    "module_grid",
+    "pick_device",
+    "predict",
+    "run",
+]
 
 log = logging.getLogger(__name__)
 
@@ -183,9 +191,14 @@ class _Progress(TQDMProgressBar):
     def init_test_tqdm(self) -> Tqdm:
         """A bar that leaves stdout to the command's own output."""
         return Tqdm(
-            desc=self.desc, disable=self.is_disabled, leave=False, dynamic_ncols=True,
-            file=sys.stderr, smoothing=0, unit="batch",
-        )  # fmt: skip
+            desc=self.desc,
+            disable=self.is_disabled,
+            leave=False,
+            dynamic_ncols=True,
+            file=sys.stderr,
+            smoothing=0,
+            unit="batch",
+        )
 
 
 @contextmanager
@@ -230,10 +243,15 @@ def predict(
     clips = ClipOutputsModule(module)
     with _quiet_lightning():
         trainer = L.Trainer(
-            accelerator=device.type, devices=[device.index] if device.index is not None else 1,
-            precision="32-true", logger=False, enable_checkpointing=False,
-            enable_model_summary=False, inference_mode=False, callbacks=callbacks,
-        )  # fmt: skip
+            accelerator=device.type,
+            devices=[device.index] if device.index is not None else 1,
+            precision="32-true",
+            logger=False,
+            enable_checkpointing=False,
+            enable_model_summary=False,
+            inference_mode=False,
+            callbacks=callbacks,
+        )
         if isinstance(data, L.LightningDataModule):
             trainer.test(clips, datamodule=data, verbose=False)
         else:
@@ -258,9 +276,14 @@ def _pct(value: float) -> str:
 def _metrics_row(label: str, m: dict) -> list:
     """One row of the simulated-split report: clips, top-1/top-5, stretch, bend, grid MAE."""
     return [
-        label, m["clips"], _pct(m["acc"]), _pct(m["top5"]), _pct(m["stretch_acc"]),
-        _pct(m["bend_acc"]), f"{m['grid_mae']:.2f}",
-    ]  # fmt: skip
+        label,
+        m["clips"],
+        _pct(m["acc"]),
+        _pct(m["top5"]),
+        _pct(m["stretch_acc"]),
+        _pct(m["bend_acc"]),
+        f"{m['grid_mae']:.2f}",
+    ]
 
 
 def _breakdown_label(field: str, value: str) -> str:
@@ -291,9 +314,12 @@ def evaluate_simulated(
     check_class_count(module, checkpoint=checkpoint, dataset=data_dir, grid=grid)
     dataset = ClothClipDataset(data_dir, split, verify=True, split_protocol=split_protocol)
     logits, meta = predict(
-        module, dataset, batch_size=batch_size, desc=f"{split} clips",
+        module,
+        dataset,
+        batch_size=batch_size,
+        desc=f"{split} clips",
         class_count=grid.num_classes,
-    )  # fmt: skip
+    )
     labels = torch.tensor([m["label"] for m in meta])
     result = {
         "method": module.hparams.get("method", ""),
@@ -380,9 +406,15 @@ def evaluate_real(
     if clashes:
         raise InputError(f"columns {clashes} clash with report fields; rename them in labels.csv")
     footage = RealVideoDataModule(
-        real_dir, columns=columns, group=group, clip_len=clip_len, clip_stride=clip_stride,
-        target_fps=target_fps, size=size, batch_size=batch_size,
-    )  # fmt: skip
+        real_dir,
+        columns=columns,
+        group=group,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        target_fps=target_fps,
+        size=size,
+        batch_size=batch_size,
+    )
     dataset = footage.dataset
     columns = dataset.columns
     _check_correlatable(dataset, Path(real_dir))
@@ -395,10 +427,16 @@ def evaluate_real(
     mean_probs = torch.stack([probs[rows_of[v.name]].mean(0) for v in used])
     scores = {k: v.tolist() for k, v in material_scores(mean_probs, grid).items()}
     per_video = [
-        {"video": v.name, "group": v.group, "wind": v.wind, "clips": len(rows_of[v.name]),
-         **v.values, **{k: scores[k][i] for k in scores}}
+        {
+            "video": v.name,
+            "group": v.group,
+            "wind": v.wind,
+            "clips": len(rows_of[v.name]),
+            **v.values,
+            **{k: scores[k][i] for k in scores},
+        }
         for i, v in enumerate(used)
-    ]  # fmt: skip
+    ]
     inputs = {"all": list(range(len(per_video)))}
     for wind in sorted({v["wind"] for v in per_video if v["wind"]}):
         inputs[wind] = [i for i, v in enumerate(per_video) if v["wind"] == wind]
@@ -408,13 +446,16 @@ def evaluate_real(
         score_correlations[name] = {
             score: {
                 column: correlate(
-                    [per_video[i][score] for i in idx], [per_video[i][column] for i in idx],
-                    groups=groups, rounds=rounds, seed=seed,
+                    [per_video[i][score] for i in idx],
+                    [per_video[i][column] for i in idx],
+                    groups=groups,
+                    rounds=rounds,
+                    seed=seed,
                 ).to_json()
                 for column in columns
             }
             for score in CORRELATED_SCORES
-        }  # fmt: skip
+        }
     correlations = {
         name: {column: by_score["material_score"][column] for column in columns}
         for name, by_score in score_correlations.items()
@@ -429,11 +470,15 @@ def evaluate_real(
             c = score_correlations["all"][score][column]
             path = out / f"scatter_{score}_vs_{slugs[column]}.png"
             scatter_png(
-                path, [v[column] for v in per_video], [v[score] for v in per_video], winds,
-                xlabel=f"measured {column}", ylabel=f"predicted {score}",
+                path,
+                [v[column] for v in per_video],
+                [v[score] for v in per_video],
+                winds,
+                xlabel=f"measured {column}",
+                ylabel=f"predicted {score}",
                 title=f"{method or 'model'} on {Path(real_dir).name}: r = {_fmt_corr(c, 'pearson')}"
                 f", {c['count']} videos, {c['group_count']} groups",
-            )  # fmt: skip
+            )
             scatter.setdefault(score, {})[column] = path.name
     skipped = [
         {"video": s.name, "frame_count": s.frame_count, "frames_needed": s.frames_needed}
@@ -476,8 +521,12 @@ def evaluate_real(
     write_text(out / "real.md", _real_markdown(result, dataset, inputs, grid))
     log.info(
         "%s: %d of %d videos used, %d skipped; report in %s",
-        real_dir, result["videos_used"], result["videos_listed"], result["videos_skipped"], out,
-    )  # fmt: skip
+        real_dir,
+        result["videos_used"],
+        result["videos_listed"],
+        result["videos_skipped"],
+        out,
+    )
     return result
 
 
@@ -496,8 +545,9 @@ def _check_correlatable(dataset: RealVideoDataset, real_dir: Path) -> None:
             f"{real_dir / 'labels.csv'} are long enough for a clip; a correlation needs at "
             f"least {MIN_SAMPLES}"
         )
-    constant = {c: used[0].values[c] for c in dataset.columns
-                if len({v.values[c] for v in used}) == 1}  # fmt: skip
+    constant = {
+        c: used[0].values[c] for c in dataset.columns if len({v.values[c] for v in used}) == 1
+    }
     if len(constant) == len(dataset.columns):
         raise InputError(
             f"real_dir: every measured column of {real_dir / 'labels.csv'} has one value for "
@@ -507,8 +557,10 @@ def _check_correlatable(dataset: RealVideoDataset, real_dir: Path) -> None:
     for column, value in constant.items():
         log.warning(
             "%s: column %r is %g for every video, so its correlations are n/a",
-            real_dir / "labels.csv", column, value,
-        )  # fmt: skip
+            real_dir / "labels.csv",
+            column,
+            value,
+        )
 
 
 def _real_markdown(
@@ -541,24 +593,43 @@ def _real_markdown(
         f"0..{grid.bend_count - 1}.\n"
     )
     header = [
-        "input", "score", "measured", "videos", "groups", "Pearson r [95% CI]", "p",
-        "Spearman rho [95% CI]", "p",
-    ]  # fmt: skip
+        "input",
+        "score",
+        "measured",
+        "videos",
+        "groups",
+        "Pearson r [95% CI]",
+        "p",
+        "Spearman rho [95% CI]",
+        "p",
+    ]
     rows = []
     for name, by_score in result["score_correlations"].items():
         for score, by_column in by_score.items():
             for column in columns:
                 c = by_column[column]
-                rows.append([
-                    name, score, column, c["count"], c["group_count"], _fmt_corr(c, "pearson"),
-                    _fmt_p(c["pearson_p"]), _fmt_corr(c, "spearman"), _fmt_p(c["spearman_p"]),
-                ])  # fmt: skip
+                rows.append(
+                    [
+                        name,
+                        score,
+                        column,
+                        c["count"],
+                        c["group_count"],
+                        _fmt_corr(c, "pearson"),
+                        _fmt_p(c["pearson_p"]),
+                        _fmt_corr(c, "spearman"),
+                        _fmt_p(c["spearman_p"]),
+                    ]
+                )
     lines.append(markdown_table(header, rows))
     thesis = [
-        [f"W{k + 1}", f"{THESIS_TABLE_73['stiffness'][k]:.2f}",
-         f"{THESIS_TABLE_73['density'][k]:.2f}"]
+        [
+            f"W{k + 1}",
+            f"{THESIS_TABLE_73['stiffness'][k]:.2f}",
+            f"{THESIS_TABLE_73['density'][k]:.2f}",
+        ]
         for k in range(3)
-    ]  # fmt: skip
+    ]
     lines.append(
         "Thesis Table 7.3 for reference (CNN+LSTM, 30 fabrics, one video per wind level, "
         "Pearson r of the predicted class number):\n"
@@ -640,8 +711,16 @@ def evaluation_folder(
         }
         parts.append(f"{data_dir.resolve().name}-{settings['split']}")
     if real_dir is not None:
-        keys = ("clip_len", "clip_stride", "target_fps", "size", "columns", "group", "rounds",
-                "seed")  # fmt: skip
+        keys = (
+            "clip_len",
+            "clip_stride",
+            "target_fps",
+            "size",
+            "columns",
+            "group",
+            "rounds",
+            "seed",
+        )
         inputs["real"] = {
             "real_dir": str(real_dir.resolve()),
             "labels_sha256": _sha256(real_dir / "labels.csv"),
@@ -689,18 +768,30 @@ def run(cfg: DictConfig) -> dict:
     try:
         if data_dir is not None:
             results["sim"] = evaluate_simulated(
-                module, data_dir, folder, split=settings["split"],
-                split_protocol=settings["split_protocol"], batch_size=settings["batch_size"],
+                module,
+                data_dir,
+                folder,
+                split=settings["split"],
+                split_protocol=settings["split_protocol"],
+                batch_size=settings["batch_size"],
                 checkpoint=ckpt,
-            )  # fmt: skip
+            )
         if real_dir is not None:
             results["real"] = evaluate_real(
-                module, real_dir, folder, columns=settings["columns"], group=settings["group"],
-                clip_len=settings["clip_len"], clip_stride=settings["clip_stride"],
-                target_fps=settings["target_fps"], size=settings["size"],
-                batch_size=settings["batch_size"], rounds=settings["rounds"],
-                seed=settings["seed"], checkpoint=ckpt,
-            )  # fmt: skip
+                module,
+                real_dir,
+                folder,
+                columns=settings["columns"],
+                group=settings["group"],
+                clip_len=settings["clip_len"],
+                clip_stride=settings["clip_stride"],
+                target_fps=settings["target_fps"],
+                size=settings["size"],
+                batch_size=settings["batch_size"],
+                rounds=settings["rounds"],
+                seed=settings["seed"],
+                checkpoint=ckpt,
+            )
         write_json(folder / FINISHED, inputs)
     except BaseException:
         if created:

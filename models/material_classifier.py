@@ -130,11 +130,25 @@ class MaterialClassifierModule(L.LightningModule):
         labels = batch["label"]
         loss = self.loss(logits, labels)
         size = labels.shape[0]
-        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=size,
-                 sync_dist=True)
+        self.log(
+            "train/loss",
+            loss,
+            on_step=False,
+            on_epoch=True,
+            prog_bar=True,
+            batch_size=size,
+            sync_dist=True,
+        )
         acc = (logits.argmax(1) == labels).float().mean()
-        self.log("train/acc", acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=size,
-                 sync_dist=True)
+        self.log(
+            "train/acc",
+            acc,
+            on_step=False,
+            on_epoch=True,
+            prog_bar=True,
+            batch_size=size,
+            sync_dist=True,
+        )
         return loss
 
     def _eval_step(self, split: str, batch: dict) -> None:
@@ -351,4 +365,3 @@ def init_weights_from(module: MaterialClassifierModule, checkpoint: str | Path) 
             f"init_from {path} does not fit this model (method {module.hparams.method!r}): "
             f"{' '.join(str(error).split())[:400]}"
         ) from None
-

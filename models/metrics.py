@@ -14,9 +14,12 @@ import torch
 from common.grid import ClassGrid
 
 __all__ = [
-    "BREAKDOWNS", "breakdown_metrics", "classification_metrics",
-    "confusion_matrix", "grid_position",
-]  # fmt: skip
+    "BREAKDOWNS",
+    "breakdown_metrics",
+    "classification_metrics",
+    "confusion_matrix",
+    "grid_position",
+]
 
 
 def grid_position(classes: torch.Tensor, grid: ClassGrid) -> tuple[torch.Tensor, torch.Tensor]:

@@ -16,9 +16,14 @@ from common.files import atomic_write_bytes
 from common.grid import ClassGrid
 
 __all__ = [
-    "MarkdownTable", "confusion_png", "markdown_table", "scatter_png", "wind_label", "write_json",
+    "MarkdownTable",
+    "confusion_png",
+    "markdown_table",
+    "scatter_png",
+    "wind_label",
+    "write_json",
     "write_text",
-]  # fmt: skip
+]
 
 
 def write_json(path: str | Path, payload) -> None:

@@ -18,7 +18,6 @@ before anything is built or written; a bad value is an :class:`~common.errors.In
 naming the field.
 """
 
-
 from __future__ import annotations
 
 import hashlib
@@ -135,8 +134,10 @@ def check_dataset_identity(output_dir: Path, identity: list[dict]) -> bool:
             log.warning(
                 "run folder %s has checkpoints but no %s (made before runs recorded their "
                 "dataset): recording %s",
-                output_dir, DATASET_RECORD, _describe(identity),
-            )  # fmt: skip
+                output_dir,
+                DATASET_RECORD,
+                _describe(identity),
+            )
         return True
     try:
         recorded = json.loads(path.read_text())["datasets"]
@@ -154,8 +155,10 @@ def check_dataset_identity(output_dir: Path, identity: list[dict]) -> bool:
     if [d["dir"] for d in recorded] != [d["dir"] for d in identity]:
         log.warning(
             "run folder %s: its dataset moved from %s to %s (same manifest bytes)",
-            output_dir, _describe(recorded), _describe(identity),
-        )  # fmt: skip
+            output_dir,
+            _describe(recorded),
+            _describe(identity),
+        )
         return True
     return False
 
@@ -183,9 +186,12 @@ def _log_early_stop(trainer) -> None:
             reason = reason.replace("Signaling Trainer to stop.", "").strip().rstrip(".")
         log.info(
             "early stopping ended training after epoch %d of max_epochs %s: %s (best %s = %.4f)",
-            callback.stopped_epoch + 1, trainer.max_epochs, reason, callback.monitor,
+            callback.stopped_epoch + 1,
+            trainer.max_epochs,
+            reason,
+            callback.monitor,
             float(callback.best_score),
-        )  # fmt: skip
+        )
 
 
 def _labels_from_data(cfg: DictConfig, datamodule) -> None:
@@ -304,10 +310,14 @@ def train(cfg: DictConfig) -> dict:
         if not best.is_file():
             raise FileNotFoundError(f"no best checkpoint at {best}: did training run?")
         result = evaluate_simulated(
-            load_classifier(best), cfg.dataset.dir, output_dir / "eval",
-            split="test", split_protocol=str(cfg.data.split_protocol),
-            batch_size=int(cfg.data.batch_size), extra=metrics,
-        )  # fmt: skip
+            load_classifier(best),
+            cfg.dataset.dir,
+            output_dir / "eval",
+            split="test",
+            split_protocol=str(cfg.data.split_protocol),
+            batch_size=int(cfg.data.batch_size),
+            extra=metrics,
+        )
         metrics.update({f"test/{k}": v for k, v in result.items() if isinstance(v, float)})
         log.info("test top-1 %.3f (best val %.3f)", result["acc"], metrics.get("best_val_acc", 0))
     return metrics

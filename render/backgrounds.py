@@ -161,9 +161,13 @@ def _dark(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
 
 
 _GENERATORS = {
-    "gradient": _gradient, "room": _room, "shapes": _shapes, "photo": _photo,
-    "plain": _plain, "dark": _dark,
-}  # fmt: skip
+    "gradient": _gradient,
+    "room": _room,
+    "shapes": _shapes,
+    "photo": _photo,
+    "plain": _plain,
+    "dark": _dark,
+}
 
 
 def make_background(

@@ -71,9 +71,14 @@ def _switch(stage: str):
 
 
 def _strength(
-    default: float, of: str, low: float, high: float, *, integer: bool = False,
+    default: float,
+    of: str,
+    low: float,
+    high: float,
+    *,
+    integer: bool = False,
     neutral: float | None = None,
-):  # fmt: skip
+):
     """A field that is the strength of switch ``of``, plausible in [low, high].
 
     Same metadata as :func:`simulator.cloth.effects.strength` (not imported: it would pull torch

@@ -105,8 +105,12 @@ class Candidate:
             grid = np.array([math.sqrt(self.low * self.high) if self.low > 0 else self.high])
         elif self.neutral is not None and self.low < self.neutral < self.high:
             space = np.geomspace if self.low > 0 and self.high / self.low >= 4 else np.linspace
-            grid = np.concatenate([space(self.low, self.neutral, count + 1)[:-1],
-                                   space(self.neutral, self.high, count + 1)[1:]])  # fmt: skip
+            grid = np.concatenate(
+                [
+                    space(self.low, self.neutral, count + 1)[:-1],
+                    space(self.neutral, self.high, count + 1)[1:],
+                ]
+            )
         elif self.log_scale:
             grid = np.geomspace(self.low, self.high, count)
         else:
@@ -186,11 +190,13 @@ def _switch_candidates(cls, registry: str) -> list[Candidate]:
         if (param := strengths.get(field.name)) is not None:
             low, high = param.metadata["plausible"]
             kwargs = {
-                "param": param.name, "low": low, "high": high,
+                "param": param.name,
+                "low": low,
+                "high": high,
                 "integer": bool(param.metadata.get("integer", False)),
                 "default": getattr(defaults, param.name),
                 "neutral": param.metadata.get("neutral"),
-            }  # fmt: skip
+            }
         out.append(
             Candidate(
                 name=f"{registry}.{field.name}",
@@ -280,10 +286,7 @@ def select_candidates(
     if not names:
         raise ValueError("candidates: the list is empty; give 'all', a stage or candidate names")
     wanted = set(names)
-    return [
-        c for c in library.values()
-        if "all" in wanted or c.name in wanted or c.stage in wanted
-    ]  # fmt: skip
+    return [c for c in library.values() if "all" in wanted or c.name in wanted or c.stage in wanted]
 
 
 def _command(cfg) -> None:
@@ -295,9 +298,12 @@ def _command(cfg) -> None:
 
     with config_errors():
         spec = DatasetSpec(
-            motion=str(cfg.motion), scenario=instantiate(cfg.scenario), preset=PRESETS["small"],
-            texture_mode=cfg.texture, backdrop=cfg.backdrop,
-        )  # fmt: skip
+            motion=str(cfg.motion),
+            scenario=instantiate(cfg.scenario),
+            preset=PRESETS["small"],
+            texture_mode=cfg.texture,
+            backdrop=cfg.backdrop,
+        )
     for c in candidate_library(spec).values():
         strengths = (
             "switch"

@@ -52,8 +52,12 @@ STATISTIC_BOOT = 200
 
 def statistic_names() -> list[str]:
     """Names of the clip statistics, in the order of :func:`clip_statistics`' columns."""
-    return [f"{kind}({rung}.{name})" for kind in ("median", "spread")
-            for rung in hand_rung_names() for name in hand_rung(rung).feature_names]  # fmt: skip
+    return [
+        f"{kind}({rung}.{name})"
+        for kind in ("median", "spread")
+        for rung in hand_rung_names()
+        for name in hand_rung(rung).feature_names
+    ]
 
 
 def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs) -> np.ndarray:
@@ -138,12 +142,17 @@ def camera_signatures(
     """
     names = statistic_names()
     nominal = clip_statistics(sim)[0]
-    curves = {e: np.stack([clip_statistics(f)[0] for f in sets]) for e, (_, sets, _) in
-              effect_sets.items()}  # fmt: skip
-    curves.update({
-        f"rival:{r}": np.stack([clip_statistics(f)[0] for f in sets])
-        for r, sets in (rivals or {}).items() if r not in effect_sets
-    })  # fmt: skip
+    curves = {
+        e: np.stack([clip_statistics(f)[0] for f in sets])
+        for e, (_, sets, _) in effect_sets.items()
+    }
+    curves.update(
+        {
+            f"rival:{r}": np.stack([clip_statistics(f)[0] for f in sets])
+            for r, sets in (rivals or {}).items()
+            if r not in effect_sets
+        }
+    )
     spread = np.concatenate([nominal[None], *curves.values()]).std(axis=0)
     raw_se = _bootstrap_se(sim, rng)
     se = np.maximum(raw_se, SCALE_FLOOR * spread + 1e-12)
@@ -249,12 +258,17 @@ def match_camera(
         )
         strength = (
             _invert(sig["strengths"], sig["values"], nominal, value, sig["neutral"])
-            if present else None
-        )  # fmt: skip
+            if present
+            else None
+        )
         out[effect] = {
-            "statistic": sig["statistic"], "real": value, "nominal": nominal, "z": float(z),
-            "present": bool(present), "strength": strength,
-        }  # fmt: skip
+            "statistic": sig["statistic"],
+            "real": value,
+            "nominal": nominal,
+            "z": float(z),
+            "present": bool(present),
+            "strength": strength,
+        }
     return out
 
 
@@ -295,15 +309,26 @@ def swap_closure(
         x, y = sim_after.rungs[rung], real_after.rungs[rung]
         after = _mmd2(sim, real, x, y, rung, gap.bandwidth)
         pooled = np.concatenate([sim.rungs[rung], real.rungs[rung]])
-        auc = domain_auc(standardize(pooled, x)[1], standardize(pooled, y)[1],
-                         sim_after.groups, real_after.groups, rng=rng)  # fmt: skip
-        corrected = (max(0.0, auc - gap.floor_auc) / max(1e-9, 1.0 - gap.floor_auc)
-                     if math.isfinite(gap.floor_auc) else math.nan)  # fmt: skip
+        auc = domain_auc(
+            standardize(pooled, x)[1],
+            standardize(pooled, y)[1],
+            sim_after.groups,
+            real_after.groups,
+            rng=rng,
+        )
+        corrected = (
+            max(0.0, auc - gap.floor_auc) / max(1e-9, 1.0 - gap.floor_auc)
+            if math.isfinite(gap.floor_auc)
+            else math.nan
+        )
         out[rung] = {
-            "mmd2_before": gap.mmd2, "mmd2_after": after, "floor_mmd2": floor,
+            "mmd2_before": gap.mmd2,
+            "mmd2_after": after,
+            "floor_mmd2": floor,
             "closure": gap_closed(gap.mmd2, after, floor),
-            "corrected_auc_before": gap.corrected_auc, "corrected_auc_after": corrected,
-        }  # fmt: skip
+            "corrected_auc_before": gap.corrected_auc,
+            "corrected_auc_after": corrected,
+        }
     return out
 
 
@@ -337,11 +362,12 @@ def score_correlations(real: LadderFeatures, logits: np.ndarray, *, seed: int = 
 
     per_video = group_scores(real.groups, logits, real.stiffness, real.density)
     return {
-        f"{score}~{target}": correlate(per_video[score], per_video[target], rounds=1000,
-                                       seed=seed).to_json()
+        f"{score}~{target}": correlate(
+            per_video[score], per_video[target], rounds=1000, seed=seed
+        ).to_json()
         for score in ("material_score", "stretch_score", "bend_score")
         for target in ("stiffness", "density")
-    }  # fmt: skip
+    }
 
 
 def batchnorm_swap(

@@ -83,8 +83,11 @@ def candidate_detectability(
         for j, value in enumerate(values):
             features = sets[label(candidate, value)]
             inert.append(is_inert(nominal, features))
-            p.append(1.0 if inert[-1] else detection_p(null, features, n_perm=n_perm,
-                                                       seed=[seed, 11, i, j]))  # fmt: skip
+            p.append(
+                1.0
+                if inert[-1]
+                else detection_p(null, features, n_perm=n_perm, seed=[seed, 11, i, j])
+            )
         detected = [v < alpha for v in p]
         if all(inert):
             verdict = "inert"
@@ -93,9 +96,14 @@ def candidate_detectability(
         else:
             verdict = "detected" if all(detected) else "partly"
         out[candidate.name] = {
-            "stage": candidate.stage, "strengths": list(values), "log_scale": candidate.log_scale,
-            "p": p, "detected": detected, "inert": inert, "verdict": verdict,
-        }  # fmt: skip
+            "stage": candidate.stage,
+            "strengths": list(values),
+            "log_scale": candidate.log_scale,
+            "p": p,
+            "detected": detected,
+            "inert": inert,
+            "verdict": verdict,
+        }
     return out
 
 
@@ -113,7 +121,9 @@ def detectable_at(entry: dict, strength) -> bool:
     def where(v):
         return math.log(v) if log_scale and v > 0 else v
 
-    numeric = [(abs(where(v) - where(strength)), d)
-               for v, d in zip(values, entry["detected"], strict=True)
-               if isinstance(v, int | float)]  # fmt: skip
+    numeric = [
+        (abs(where(v) - where(strength)), d)
+        for v, d in zip(values, entry["detected"], strict=True)
+        if isinstance(v, int | float)
+    ]
     return bool(min(numeric)[1]) if numeric else False

@@ -114,9 +114,9 @@ def prior_materials(spec: DatasetSpec, unit: WorkUnit) -> tuple[np.ndarray, np.n
     """
     multipliers = np.log([multipliers_from_class(c) for c in spec.classes])
     low, high = multipliers.min(axis=0), multipliers.max(axis=0)
-    draws = np.array([
-        np.random.default_rng([s.seed, _MATERIAL_STREAM]).uniform(low, high) for s in unit.sims
-    ])  # fmt: skip
+    draws = np.array(
+        [np.random.default_rng([s.seed, _MATERIAL_STREAM]).uniform(low, high) for s in unit.sims]
+    )
     return np.exp(draws[:, 0]), np.exp(draws[:, 1])
 
 

@@ -571,7 +571,11 @@ def _row_timing(z: np.ndarray) -> np.ndarray:
         rows = z[:, top:bottom]
         first = np.mean(np.diff(rows, axis=0) ** 2)
         second = np.mean(np.diff(rows, n=2, axis=0) ** 2)
-        parts.append([math.log(second + _LOG_EPS) - math.log(first + _LOG_EPS),
-                      *np.log(_temporal_bands(rows) + _LOG_EPS)])  # fmt: skip
+        parts.append(
+            [
+                math.log(second + _LOG_EPS) - math.log(first + _LOG_EPS),
+                *np.log(_temporal_bands(rows) + _LOG_EPS),
+            ]
+        )
     parts = np.asarray(parts)
     return np.concatenate([parts.ravel(), parts[-1] - parts[0]])

@@ -109,8 +109,10 @@ def adapt_batchnorm(
     """
     clips = _check_clips(clips)
     if len(clips) < 2 or batch_size < 2:
-        raise ValueError(f"adapt_batchnorm needs >= 2 clips and batch_size >= 2, got "
-                         f"{len(clips)} clips, batch_size {batch_size}")  # fmt: skip
+        raise ValueError(
+            f"adapt_batchnorm needs >= 2 clips and batch_size >= 2, got "
+            f"{len(clips)} clips, batch_size {batch_size}"
+        )
     adapted = copy.deepcopy(net).to(device).eval()
     norms = [m for m in adapted.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
     if not norms:

@@ -59,9 +59,16 @@ from .result import Diagnosis
 from .stacking import STACK_MIN_LEADER, explained_by_stack, stacked_fit
 
 __all__ = [
-    "Budget", "SetContext", "SetJob", "build_set", "explained_together", "load_run",
-    "real_ladder", "run_diagnosis", "spanning_classes",
-]  # fmt: skip
+    "Budget",
+    "SetContext",
+    "SetJob",
+    "build_set",
+    "explained_together",
+    "load_run",
+    "real_ladder",
+    "run_diagnosis",
+    "spanning_classes",
+]
 
 log = logging.getLogger(__name__)
 
@@ -126,8 +133,10 @@ class Budget:
             check_int(f"budget.{name}", getattr(self, name))
         if self.class_grid is not None:
             if len(self.class_grid) != 2:
-                raise ValueError(f"budget.class_grid must be [stretch, bend] counts or null, "
-                                 f"got {self.class_grid!r}")  # fmt: skip
+                raise ValueError(
+                    f"budget.class_grid must be [stretch, bend] counts or null, "
+                    f"got {self.class_grid!r}"
+                )
             object.__setattr__(self, "class_grid", tuple(self.class_grid))
             for count in self.class_grid:
                 check_int("budget.class_grid", count)
@@ -225,10 +234,13 @@ def _cache_path(context: SetContext, key: str) -> Path:
 
 def _sim_key(job: SetJob, context: SetContext) -> str:
     return content_key(
-        kind="sim", spec=job.spec.key(), frames=job.spec.frames_per_sim,
+        kind="sim",
+        spec=job.spec.key(),
+        frames=job.spec.frames_per_sim,
         clip=[context.clip_len, context.clip_stride],
-        box=list(context.box), net=context.checkpoint_digest,
-    )  # fmt: skip
+        box=list(context.box),
+        net=context.checkpoint_digest,
+    )
 
 
 def null_job(spec: DatasetSpec) -> SetJob:
@@ -259,9 +271,12 @@ def build_set(job: SetJob, context: SetContext, threads: int = 1) -> tuple[str, 
         return str(path), {}
     start = time.perf_counter()
     clips = simulated_clips(
-        job.spec, context.mesh_cache, clip_len=context.clip_len, clip_stride=context.clip_stride,
+        job.spec,
+        context.mesh_cache,
+        clip_len=context.clip_len,
+        clip_stride=context.clip_stride,
         render_cache=Path(context.cache_dir) / "renders",
-    )  # fmt: skip
+    )
     middle = time.perf_counter()
     features = ladder_features(clips, context.box, _net(context), device=context.device)
     features.save(path)
@@ -315,10 +330,15 @@ def real_ladder(
 ) -> LadderFeatures:
     """The real clips on every rung of ``context``'s network (cached by content)."""
     key = content_key(
-        kind="real", files=_real_digest(Path(real_dir)),
-        clip=[context.clip_len, context.clip_stride], fps=fps, size=int(clips.frames.shape[2]),
-        max_clips=max_clips, box=list(context.box), net=context.checkpoint_digest,
-    )  # fmt: skip
+        kind="real",
+        files=_real_digest(Path(real_dir)),
+        clip=[context.clip_len, context.clip_stride],
+        fps=fps,
+        size=int(clips.frames.shape[2]),
+        max_clips=max_clips,
+        box=list(context.box),
+        net=context.checkpoint_digest,
+    )
     path = _cache_path(context, key)
     if path.is_file():
         return LadderFeatures.load(path)
@@ -370,18 +390,24 @@ def run_diagnosis(
     if train_spec.camera.width != train_spec.camera.height:
         raise ValueError("the training data's frames are not square; real clips are square crops")
     spec = diagnosis_spec(
-        train_spec, classes=spanning_classes(train_spec.classes, budget.class_grid),
-        sims_per_class=budget.sims_per_class, clips_per_sim=budget.clips_per_sim,
+        train_spec,
+        classes=spanning_classes(train_spec.classes, budget.class_grid),
+        sims_per_class=budget.sims_per_class,
+        clips_per_sim=budget.clips_per_sim,
         seed_offset=SIM_SEED_OFFSET + SIM_SEED_STEP * check_int("sim_seed", sim_seed, low=0),
-    )  # fmt: skip
+    )
     library = candidate_library(spec)
     chosen = select_candidates(library, candidates)
     plan = _strength_plan(chosen, strengths or {}, budget.strengths)
     # Real clips first: a bad real folder fails before any simulation.
     real = real_clips(
-        real_dir, size=spec.camera.height, clip_len=clip_len, clip_stride=clip_stride,
-        fps=spec.preset.fps, max_clips_per_video=budget.clips_per_sim,
-    )  # fmt: skip
+        real_dir,
+        size=spec.camera.height,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        fps=spec.preset.fps,
+        max_clips_per_video=budget.clips_per_sim,
+    )
     if real.group_count < 4:
         raise ValueError(
             f"real_dir: {real.group_count} usable videos; the diagnosis needs at least 4 "
@@ -395,16 +421,22 @@ def run_diagnosis(
     nominal_clips = simulated_clips(spec, mesh_cache, clip_len=clip_len, clip_stride=clip_stride)
     box = roi_box(nominal_clips.coverage)
     context = SetContext(
-        box=tuple(int(v) for v in box), checkpoint=str(checkpoint),
-        checkpoint_digest=file_digest(checkpoint), mesh_cache=str(mesh_cache),
-        cache_dir=str(cache_dir), clip_len=clip_len, clip_stride=clip_stride, device=device,
-    )  # fmt: skip
+        box=tuple(int(v) for v in box),
+        checkpoint=str(checkpoint),
+        checkpoint_digest=file_digest(checkpoint),
+        mesh_cache=str(mesh_cache),
+        cache_dir=str(cache_dir),
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        device=device,
+    )
     _NETS[(context.checkpoint, device)] = net
     timing["generate"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    real_features = real_ladder(real_dir, real, context, fps=spec.preset.fps,
-                                max_clips=budget.clips_per_sim)  # fmt: skip
+    real_features = real_ladder(
+        real_dir, real, context, fps=spec.preset.fps, max_clips=budget.clips_per_sim
+    )
     cached_nominal = nominal_path(spec, context)
     if cached_nominal.is_file():
         nominal = LadderFeatures.load(cached_nominal)
@@ -421,9 +453,15 @@ def run_diagnosis(
 
     tick = time.perf_counter()
     reference = compare_domains(
-        nominal, sets["S'"], real_features, n_perm=budget.n_perm, n_boot=budget.n_boot,
-        n_floor=budget.n_floor, seed=seed, alpha=alpha,
-    )  # fmt: skip
+        nominal,
+        sets["S'"],
+        real_features,
+        n_perm=budget.n_perm,
+        n_boot=budget.n_boot,
+        n_floor=budget.n_floor,
+        seed=seed,
+        alpha=alpha,
+    )
     detection, location, gaps = reference.detection, reference.location, reference.gaps
     rungs, before = reference.rungs, reference.before
     timing["fit"] = time.perf_counter() - tick
@@ -456,12 +494,19 @@ def run_diagnosis(
     def fit(plan):
         return [
             fit_strength(
-                result, [sets[_label(c, v)] for v in values], nominal, real_features, gaps,
-                rungs, log_scale=c.log_scale, n_boot=budget.n_boot,
-                rng=np.random.default_rng([seed, 7, i]), before=before,
+                result,
+                [sets[_label(c, v)] for v in values],
+                nominal,
+                real_features,
+                gaps,
+                rungs,
+                log_scale=c.log_scale,
+                n_boot=budget.n_boot,
+                rng=np.random.default_rng([seed, 7, i]),
+                before=before,
             )
             for i, (result, (c, values)) in enumerate(zip(score(plan), plan, strict=True))
-        ]  # fmt: skip
+        ]
 
     tick = time.perf_counter()
     refined = _refine(plan, score(plan), budget.refine)
@@ -498,22 +543,55 @@ def run_diagnosis(
     shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs, before)
     ranking = explained_together(ranking, shapley, {r.name: r.best_score for r in results})
     ranking, stacked = _stack_on_leader(
-        ranking, plan, results, spec, budget,
+        ranking,
+        plan,
+        results,
+        spec,
+        budget,
         build=lambda specs: build([SetJob(label, s) for label, s in specs.items()]),
         score=lambda name, stage, values, labels: candidate_result(
-            name, stage, values, [sets[label] for label in labels], nominal, real_features,
-            gaps, rungs, before),
-    )  # fmt: skip
+            name,
+            stage,
+            values,
+            [sets[label] for label in labels],
+            nominal,
+            real_features,
+            gaps,
+            rungs,
+            before,
+        ),
+    )
     tick = time.perf_counter()
     joint = _joint_fit(
-        plan, results, null, spec, library, budget, build=build, sets=sets, reference=reference,
+        plan,
+        results,
+        null,
+        spec,
+        library,
+        budget,
+        build=build,
+        sets=sets,
+        reference=reference,
         value_of=lambda built: closure_values(built, reference, n_boot=budget.n_boot, seed=seed),
-    )  # fmt: skip
+    )
     timing["joint"] = time.perf_counter() - tick
     swaps, built, built_cached = _stage_swaps(
-        spec, library, plan, sets, nominal, real, real_features, gaps, context, net,
-        budget=budget, n_jobs=n_jobs, progress=progress, timing=timing, seed=seed,
-    )  # fmt: skip
+        spec,
+        library,
+        plan,
+        sets,
+        nominal,
+        real,
+        real_features,
+        gaps,
+        context,
+        net,
+        budget=budget,
+        n_jobs=n_jobs,
+        progress=progress,
+        timing=timing,
+        seed=seed,
+    )
     jobs += built
     cached += built_cached
     timing["total"] = time.perf_counter() - start
@@ -526,16 +604,28 @@ def run_diagnosis(
     result = {
         "name": name,
         "inputs": {
-            "real_dir": str(real_dir), "run": str(run), "checkpoint": str(checkpoint),
+            "real_dir": str(real_dir),
+            "run": str(run),
+            "checkpoint": str(checkpoint),
             "data_dir": None if data_dir is None else str(data_dir),
-            "mesh_cache": str(mesh_cache), "cache_dir": str(cache_dir),
-            "clip_len": clip_len, "clip_stride": clip_stride,
-            "real_videos": real.group_count, "real_clips": len(real),
-            "real_skipped": list(real.skipped), "sim_clips": len(nominal),
-            "sim_groups": len(set(nominal.groups.tolist())), "budget": budget.name,
-            "budget_settings": dataclasses.asdict(budget), "box": list(context.box),
-            "training_spec_key": train_spec.key(), "nominal_spec": spec.to_json(),
-            "alpha": alpha, "seed": seed, "sim_seed": sim_seed, "device": device,
+            "mesh_cache": str(mesh_cache),
+            "cache_dir": str(cache_dir),
+            "clip_len": clip_len,
+            "clip_stride": clip_stride,
+            "real_videos": real.group_count,
+            "real_clips": len(real),
+            "real_skipped": list(real.skipped),
+            "sim_clips": len(nominal),
+            "sim_groups": len(set(nominal.groups.tolist())),
+            "budget": budget.name,
+            "budget_settings": dataclasses.asdict(budget),
+            "box": list(context.box),
+            "training_spec_key": train_spec.key(),
+            "nominal_spec": spec.to_json(),
+            "alpha": alpha,
+            "seed": seed,
+            "sim_seed": sim_seed,
+            "device": device,
         },
         "rungs": {n: g.to_json() for n, g in gaps.items()},
         "detection_rungs": {n: g.to_json() for n, g in detection.items()},
@@ -543,8 +633,9 @@ def run_diagnosis(
         "scored_rungs": rungs,
         "reference_auc": before.auc,
         "reference_classifier": before.to_json(),
-        "candidates": {r.name: {**r.to_json(), "best": r.best, "kernel_closure": kernel(r)}
-                       for r in results},
+        "candidates": {
+            r.name: {**r.to_json(), "best": r.best, "kernel_closure": kernel(r)} for r in results
+        },
         "null": {**null.to_json(), "kernel_closure": kernel(null)},
         "ranking": ranking,
         "residual": residual,
@@ -559,7 +650,7 @@ def run_diagnosis(
         "probes": probes,
         "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
         "timing": timing,
-    }  # fmt: skip
+    }
     diagnosis = Diagnosis.from_json(json_safe(result))
     sheet_rows = {"S (nominal simulation)": nominal_clips.frames[0]}
     sheet_rows.update({f"R: {real.groups[i]}": real.frames[i] for i in _spread(len(real), 3)})
@@ -570,8 +661,22 @@ def run_diagnosis(
 
 
 def _stage_swaps(
-    spec, library, plan, sets, nominal, real, real_features, gaps, context, net, *,
-    budget, n_jobs, progress, timing, seed,
+    spec,
+    library,
+    plan,
+    sets,
+    nominal,
+    real,
+    real_features,
+    gaps,
+    context,
+    net,
+    *,
+    budget,
+    n_jobs,
+    progress,
+    timing,
+    seed,
 ) -> tuple[dict, list[SetJob], int]:
     """Counterfactuals (b) camera statistics of R emulated on S and (c) AdaBN on R.
 
@@ -583,8 +688,9 @@ def _stage_swaps(
     planned = {c.name: values for c, values in plan}
     camera = [
         (c, planned.get(c.name) or c.strengths(budget.strengths))
-        for c in library.values() if c.stage == "camera" and not c.binary and not c.choices
-    ]  # fmt: skip
+        for c in library.values()
+        if c.stage == "camera" and not c.binary and not c.choices
+    ]
     built = [j for j in _candidate_jobs(spec, camera) if j.label not in sets]
     more, cached = run_jobs(built, context, n_jobs, progress, timing)
     sets.update(more)
@@ -593,8 +699,9 @@ def _stage_swaps(
     signatures = camera_signatures(
         nominal,
         {c.name: (values, [sets[_label(c, v)] for v in values], c.neutral) for c, values in camera},
-        rivals, rng=rng,
-    )  # fmt: skip
+        rivals,
+        rng=rng,
+    )
     matched = match_camera(signatures, real_features, nominal, rng=rng)
     present = [(library[n], m["strength"]) for n, m in matched.items() if m["present"]]
     camera_entry = {"matched": matched, "set": None, "rungs": None}
@@ -609,8 +716,9 @@ def _stage_swaps(
         built.append(job)
         cached += hit
         camera_entry["set"] = label
-        camera_entry["rungs"] = swap_closure(nominal, real_features, gaps, sim_after=more[label],
-                                             rng=rng)  # fmt: skip
+        camera_entry["rungs"] = swap_closure(
+            nominal, real_features, gaps, sim_after=more[label], rng=rng
+        )
     adapted_features = _adapted_real(real, real_features, context, net)
     entry = {
         "camera": camera_entry,
@@ -622,8 +730,12 @@ def _stage_swaps(
 
 def _adapted_real(real, real_features: LadderFeatures, context: SetContext, net):
     """R's layers through the network with batch-norm statistics re-estimated on R (cached)."""
-    key = content_key(kind="real-adabn", real=_real_digest_of(real), net=context.checkpoint_digest,
-                      box=list(context.box))  # fmt: skip
+    key = content_key(
+        kind="real-adabn",
+        real=_real_digest_of(real),
+        net=context.checkpoint_digest,
+        box=list(context.box),
+    )
     path = _cache_path(context, key)
     if path.is_file():
         return LadderFeatures.load(path)
@@ -654,15 +766,23 @@ def _residual_gap(ranking, plan, results, sets, real, budget, alpha, seed) -> di
         return None
     i = next(i for i, r in enumerate(results) if r.name == top)
     strength = results[i].best_strength
-    after = rung_gaps(sets[_label(plan[i][0], strength)], real, n_perm=budget.n_perm,
-                      n_boot=budget.n_boot, n_floor=budget.n_floor, seed=seed)  # fmt: skip
+    after = rung_gaps(
+        sets[_label(plan[i][0], strength)],
+        real,
+        n_perm=budget.n_perm,
+        n_boot=budget.n_boot,
+        n_floor=budget.n_floor,
+        seed=seed,
+    )
     location = localise(after, alpha=alpha)
     return {
-        "candidate": top, "strength": strength, "gap_p": location["gap_p"],
+        "candidate": top,
+        "strength": strength,
+        "gap_p": location["gap_p"],
         "significant": location["significant"],
         "corrected_auc": {n: g.corrected_auc for n, g in after.items()},
         "p_gap": {n: g.p_gap for n, g in after.items()},
-    }  # fmt: skip
+    }
 
 
 def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, float]) -> dict:
@@ -680,8 +800,12 @@ def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, flo
     are all fitted and it is the best of several coalitions, so it closes more by chance
     (decision record: docs/design/sim2real-coalitions.md).
     """
-    if (ranking["explained"] or not shapley or ranking["top"] is None
-            or ranking.get("neutral_in_interval")):  # fmt: skip
+    if (
+        ranking["explained"]
+        or not shapley
+        or ranking["top"] is None
+        or ranking.get("neutral_in_interval")
+    ):
         return ranking
     measured = {frozenset([n]): v for n, v in alone.items()}
     measured.update({frozenset(k.split("+")): v for k, v in shapley["coalitions"].items()})
@@ -690,17 +814,24 @@ def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, flo
         return [measured[coalition - {m}] for m in coalition]
 
     holding = {
-        k: v for k, v in shapley["coalitions"].items()
+        k: v
+        for k, v in shapley["coalitions"].items()
         if ranking["top"] in k.split("+")
-        and explains_together(v, shapley["kernel_closure"][k], ranking["threshold"],
-                              without(frozenset(k.split("+"))))
-    }  # fmt: skip
+        and explains_together(
+            v, shapley["kernel_closure"][k], ranking["threshold"], without(frozenset(k.split("+")))
+        )
+    }
     if not holding:
         return ranking
     best = max(holding, key=holding.get)
-    return {**ranking, "explained": True, "look_alike": False, "explained_by": best.split("+"),
-            "explained_by_score": holding[best],
-            "explained_by_kernel_closure": shapley["kernel_closure"][best]}  # fmt: skip
+    return {
+        **ranking,
+        "explained": True,
+        "look_alike": False,
+        "explained_by": best.split("+"),
+        "explained_by_score": holding[best],
+        "explained_by_kernel_closure": shapley["kernel_closure"][best],
+    }
 
 
 def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score):
@@ -719,13 +850,20 @@ def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score
         return ranking, None
     partners = [
         (c, c.strengths(budget.strengths), results[j].best_score)
-        for j, (c, _) in enumerate(plan) if j != i and not c.needs_simulation
-    ]  # fmt: skip
+        for j, (c, _) in enumerate(plan)
+        if j != i and not c.needs_simulation
+    ]
     fit = stacked_fit(
-        spec, plan[i][0], results[i], plan[i][1], partners, build, score,
+        spec,
+        plan[i][0],
+        results[i],
+        plan[i][1],
+        partners,
+        build,
+        score,
         kernel=lambda r: kernel_closure(r, ranking["kernel_rungs"]),
         threshold=ranking["threshold"],
-    )  # fmt: skip
+    )
     return (explained_by_stack(ranking, fit) if fit["explained"] else ranking), fit
 
 
@@ -767,8 +905,9 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
     kernel = {}
     for label in coalitions:
         names = label.split(":", 1)[1].split("+")
-        scored = candidate_result(label, "coalition", (None,), [sets[label]], nominal, real,
-                                  gaps, rungs, before)  # fmt: skip
+        scored = candidate_result(
+            label, "coalition", (None,), [sets[label]], nominal, real, gaps, rungs, before
+        )
         value[frozenset(names)] = scored.best_score
         kernel["+".join(sorted(names))] = kernel_closure(scored, on)
     closure = best_subset_values(value)
@@ -781,8 +920,9 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
     }
 
 
-def _joint_pool(plan: list[tuple], results: list, reference: Reference,
-               budget: Budget) -> list[Factor]:  # fmt: skip
+def _joint_pool(
+    plan: list[tuple], results: list, reference: Reference, budget: Budget
+) -> list[Factor]:
     """Every candidate as a factor the joint fit may choose, with the strengths it tries.
 
     The strengths are up to ``budget.joint_strengths`` of those the candidate was scored at,
@@ -793,10 +933,13 @@ def _joint_pool(plan: list[tuple], results: list, reference: Reference,
     for (candidate, _), result in zip(plan, results, strict=True):
         values = list(result.strengths)
         closures = [
-            float(divergence_closure(
-                nominal, {r: result.scores_oof[r][j] for r in reference.rungs}, reference))
+            float(
+                divergence_closure(
+                    nominal, {r: result.scores_oof[r][j] for r in reference.rungs}, reference
+                )
+            )
             for j in range(len(values))
-        ]  # fmt: skip
+        ]
         best = values[int(np.argmax(closures))]
         picked = {values[k] for k in _spread(len(values), budget.joint_strengths)} | {best}
         options = tuple(v for v in values if v in picked)
@@ -805,8 +948,9 @@ def _joint_pool(plan: list[tuple], results: list, reference: Reference,
     return pool
 
 
-def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, sets, reference,
-               value_of):  # fmt: skip
+def _joint_fit(
+    plan, results, null, spec, library, budget: Budget, *, build, sets, reference, value_of
+):
     """The joint selection, calibration and attribution (``None`` without a scored rung).
 
     Additions are screened on S*'s features shifted by each single-candidate set's change
@@ -815,6 +959,7 @@ def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, set
     if budget.joint_top == 0 or not reference.rungs:
         return None
     nominal = reference.nominal
+
     def features_of(chosen: Assignment) -> LadderFeatures:
         return sets[assignment_job(spec, library, chosen).label] if chosen else nominal
 
@@ -827,14 +972,25 @@ def _joint_fit(plan, results, null, spec, library, budget: Budget, *, build, set
         estimates = [base.shifted(sets[_label(library[n], v)], nominal) for n, v in additions]
         return point_closures(estimates, reference)
 
-    floor = max(float(divergence_closure(
-        nominal_scores(reference), {r: null.scores_oof[r][0] for r in reference.rungs},
-        reference)), 0.0)  # fmt: skip
+    floor = max(
+        float(
+            divergence_closure(
+                nominal_scores(reference),
+                {r: null.scores_oof[r][0] for r in reference.rungs},
+                reference,
+            )
+        ),
+        0.0,
+    )
     return fit_jointly(
-        _joint_pool(plan, results, reference, budget), evaluate, screen=screen,
-        top=budget.joint_top, verify=budget.joint_verify, floor=floor,
+        _joint_pool(plan, results, reference, budget),
+        evaluate,
+        screen=screen,
+        top=budget.joint_top,
+        verify=budget.joint_verify,
+        floor=floor,
         rounds=budget.joint_rounds,
-    )  # fmt: skip
+    )
 
 
 def _label(candidate: Candidate, value) -> str:
@@ -861,8 +1017,12 @@ def _grow_top(plan: list[tuple], results: list, mode: str, extra_of) -> list[tup
     chosen = set(order[:REFINE_TOP])
     out = []
     for i, (candidate, values) in enumerate(plan):
-        grows = (i in chosen and candidate.low is not None and not candidate.choices
-                 and not (mode == "visual" and candidate.needs_simulation))  # fmt: skip
+        grows = (
+            i in chosen
+            and candidate.low is not None
+            and not candidate.choices
+            and not (mode == "visual" and candidate.needs_simulation)
+        )
         extra = set(extra_of(candidate, values, results[i])) if grows else set()
         out.append((candidate, tuple(sorted(set(values) | extra)) if extra else values))
     return out

@@ -84,13 +84,16 @@ def predictivity(
     rows = []
     for checkpoint in checkpoints:
         net = load_classifier(checkpoint).net
-        rows.append({
-            "checkpoint": str(checkpoint),
-            "sim": stiffness_rho(sim, clip_logits(net, sim.frames, device=device)),
-            "sim_effect": stiffness_rho(sim_effect,
-                                        clip_logits(net, sim_effect.frames, device=device)),
-            "real": stiffness_rho(real, clip_logits(net, real.frames, device=device)),
-        })  # fmt: skip
+        rows.append(
+            {
+                "checkpoint": str(checkpoint),
+                "sim": stiffness_rho(sim, clip_logits(net, sim.frames, device=device)),
+                "sim_effect": stiffness_rho(
+                    sim_effect, clip_logits(net, sim_effect.frames, device=device)
+                ),
+                "real": stiffness_rho(real, clip_logits(net, real.frames, device=device)),
+            }
+        )
     real_scores = [r["real"] for r in rows]
     return {
         "rows": rows,

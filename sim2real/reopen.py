@@ -77,8 +77,17 @@ class Reopened:
         """Per assignment and scored rung: the domain classifier's AUC and divergence to R."""
         sets = self.features(batch, n_jobs=n_jobs)
         ref = self.reference
-        scored = candidate_result("any", "any", (None,) * len(sets), sets, ref.nominal, ref.real,
-                                  ref.gaps, ref.rungs, ref.before)  # fmt: skip
+        scored = candidate_result(
+            "any",
+            "any",
+            (None,) * len(sets),
+            sets,
+            ref.nominal,
+            ref.real,
+            ref.gaps,
+            ref.rungs,
+            ref.before,
+        )
         return [
             {
                 rung: {
@@ -94,11 +103,15 @@ class Reopened:
 def report_context(inputs: DiagnosisInputs) -> SetContext:
     """How a stored diagnosis built its sets (box, network, caches, clip cut), on the CPU."""
     return SetContext(
-        box=tuple(int(v) for v in inputs.box), checkpoint=inputs.checkpoint,
+        box=tuple(int(v) for v in inputs.box),
+        checkpoint=inputs.checkpoint,
         checkpoint_digest=file_digest(Path(inputs.checkpoint)),
-        mesh_cache=inputs.mesh_cache, cache_dir=inputs.cache_dir,
-        clip_len=inputs.clip_len, clip_stride=inputs.clip_stride, device="cpu",
-    )  # fmt: skip
+        mesh_cache=inputs.mesh_cache,
+        cache_dir=inputs.cache_dir,
+        clip_len=inputs.clip_len,
+        clip_stride=inputs.clip_stride,
+        device="cpu",
+    )
 
 
 def report_real_features(inputs: DiagnosisInputs) -> LadderFeatures:
@@ -111,8 +124,14 @@ def report_real_features(inputs: DiagnosisInputs) -> LadderFeatures:
     size = inputs.nominal_spec["camera"]["height"]
     fps = inputs.nominal_spec["preset"]["fps"]
     clips_per = inputs.budget_settings["clips_per_sim"]
-    real = real_clips(real_dir, size=size, clip_len=context.clip_len,
-                      clip_stride=context.clip_stride, fps=fps, max_clips_per_video=clips_per)
+    real = real_clips(
+        real_dir,
+        size=size,
+        clip_len=context.clip_len,
+        clip_stride=context.clip_stride,
+        fps=fps,
+        max_clips_per_video=clips_per,
+    )
     return real_ladder(real_dir, real, context, fps=fps, max_clips=clips_per)
 
 
@@ -134,15 +153,23 @@ def reopen(diagnosis: Diagnosis) -> Reopened:
         )
     nominal = LadderFeatures.load(path)
     null = run_jobs([null_job(spec)], context, 1, False, {})[0]["S'"]
-    budget = Budget(**{k: tuple(v) if isinstance(v, list) else v
-                       for k, v in info.budget_settings.items()})  # fmt: skip
+    budget = Budget(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in info.budget_settings.items()}
+    )
     reference = compare_domains(
-        nominal, null, report_real_features(info), n_perm=budget.n_perm, n_boot=budget.n_boot,
-        n_floor=budget.n_floor, seed=info.seed, alpha=info.alpha,
-    )  # fmt: skip
+        nominal,
+        null,
+        report_real_features(info),
+        n_perm=budget.n_perm,
+        n_boot=budget.n_boot,
+        n_floor=budget.n_floor,
+        seed=info.seed,
+        alpha=info.alpha,
+    )
     if reference.rungs != list(diagnosis.scored_rungs) or not np.allclose(
         [reference.before.auc[r] for r in reference.rungs],
-        [diagnosis.reference_auc[r] for r in reference.rungs], atol=1e-9,
-    ):  # fmt: skip
+        [diagnosis.reference_auc[r] for r in reference.rungs],
+        atol=1e-9,
+    ):
         raise ValueError("cache_dir: the cached features no longer match the stored diagnosis")
     return Reopened(spec, candidate_library(spec), context, reference, budget, info.seed)

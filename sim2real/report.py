@@ -21,8 +21,15 @@ from .report_html import render_html
 from .result import Diagnosis
 
 __all__ = [
-    "answer", "contact_sheet", "document", "json_safe", "read_report", "verdict", "write_report",
+    "answer",
+    "contact_sheet",
+    "document",
+    "json_safe",
+    "read_report",
+    "verdict",
+    "write_report",
 ]
+
 
 def read_report(path: str | Path, field: str) -> Diagnosis:
     """A diagnosis's ``report.json`` read back, refused in one line unless it is one.
@@ -44,8 +51,13 @@ def read_report(path: str | Path, field: str) -> Diagnosis:
         raise InputError(f"{field}: {path} is not a diagnosis's report.json ({error})") from None
 
 
-STAGE_COLOURS = {"scene": "#8c564b", "physics": "#1f77b4", "appearance": "#2ca02c",
-                 "camera": "#ff7f0e", "null": "#7f7f7f"}  # fmt: skip
+STAGE_COLOURS = {
+    "scene": "#8c564b",
+    "physics": "#1f77b4",
+    "appearance": "#2ca02c",
+    "camera": "#ff7f0e",
+    "null": "#7f7f7f",
+}
 
 
 def json_safe(value):
@@ -84,8 +96,10 @@ def answer(result: Diagnosis) -> str:
     in :func:`verdict` and the tables.
     """
     if not result.location.significant:
-        return ("The simulated and real clips cannot be told apart beyond their noise floor "
-                "with this budget: there is no gap to explain.")  # fmt: skip
+        return (
+            "The simulated and real clips cannot be told apart beyond their noise floor "
+            "with this budget: there is no gap to explain."
+        )
     joint, ranking = result.joint, result.ranking
     parts = []
     if joint is not None and joint.shapley:
@@ -99,20 +113,27 @@ def answer(result: Diagnosis) -> str:
         parts.append(f"To close it, change the simulator: {changes}.")
     elif ranking.explained:
         top = result.candidates[ranking.top]
-        parts.append(f"The gap is explained by {ranking.top} (stage {top['stage']}), which "
-                     f"closes {100 * top['best_score']:.0f} % of it.")  # fmt: skip
+        parts.append(
+            f"The gap is explained by {ranking.top} (stage {top['stage']}), which "
+            f"closes {100 * top['best_score']:.0f} % of it."
+        )
         parts.append(f"To close it, {_change(ranking.top, top['best_strength'])}.")
     else:
-        parts.append("No candidate, alone or with others, explains the gap: unexplained "
-                     f"residual at stage {result.residual_stage}.")  # fmt: skip
+        parts.append(
+            "No candidate, alone or with others, explains the gap: unexplained "
+            f"residual at stage {result.residual_stage}."
+        )
     shrink = result.shrink
     if shrink is None:
-        parts.append("How far it shrinks after retraining is measured by `python -m "
-                     "sim2real.shrink report=<this folder>`.")  # fmt: skip
+        parts.append(
+            "How far it shrinks after retraining is measured by `python -m "
+            "sim2real.shrink report=<this folder>`."
+        )
     else:
         before, after = shrink["correlations"]["before"], shrink["correlations"]["after"]
         parts.append(
-            "Retrained with " + ", ".join(e["name"] for e in shrink["effects"])
+            "Retrained with "
+            + ", ".join(e["name"] for e in shrink["effects"])
             + ", the model's Spearman ρ with measured stiffness went "
             f"{_fmt(before['stiffness']['spearman'], 2)} -> "
             f"{_fmt(after['stiffness']['spearman'], 2)} and with density "
@@ -127,17 +148,21 @@ def verdict(result: Diagnosis) -> str:
     ranking = result.ranking
     gaps = result.detection_rungs or result.rungs  # what the gap test compared
     if not loc.significant:
-        return " ".join([
-            "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
-            f"combined: p {_fmt(loc.gap_p, 2)}, alpha {loc.alpha:g}): the simulated "
-            "and real clips are not distinguishable with this budget.",
-            *_detectability_sentences(result),
-        ])  # fmt: skip
+        return " ".join(
+            [
+                "No gap beyond the within-domain noise floor at the chosen level (all rungs' tests "
+                f"combined: p {_fmt(loc.gap_p, 2)}, alpha {loc.alpha:g}): the simulated "
+                "and real clips are not distinguishable with this budget.",
+                *_detectability_sentences(result),
+            ]
+        )
     rung_text = ", ".join(
         f"{n} (corrected AUC {_fmt(gaps[n]['corrected_auc'], 2)})" for n in loc.significant
     )
-    parts = [f"There is a gap (all rungs' tests combined: p {_fmt(loc.gap_p, 2)}); "
-             f"it shows on {rung_text}."]  # fmt: skip
+    parts = [
+        f"There is a gap (all rungs' tests combined: p {_fmt(loc.gap_p, 2)}); "
+        f"it shows on {rung_text}."
+    ]
     if loc.first_significant_layer:
         parts.append(
             f"In the network it first appears at {loc.first_significant_layer}; the largest "
@@ -172,8 +197,10 @@ def verdict(result: Diagnosis) -> str:
             )
     elif ranking.neutral_in_interval:
         top = result.candidates[ranking.top]
-        held = (f"its strength interval {_ci(tuple(top['strength_interval']))} holds its "
-                f"neutral value {_fmt(top['neutral'])}")  # fmt: skip
+        held = (
+            f"its strength interval {_ci(tuple(top['strength_interval']))} holds its "
+            f"neutral value {_fmt(top['neutral'])}"
+        )
         if top["best_score"] >= ranking.threshold:
             parts.append(
                 f"{ranking.top} closes {100 * top['best_score']:.0f} % of the classifier "
@@ -231,8 +258,11 @@ def _residual_sentences(residual: dict | None) -> list[str]:
         "" if residual["strength"] is None else f" at {_fmt(residual['strength'])}"
     )
     if residual["significant"]:
-        return [f"{added}, a significant gap remains (p {_fmt(residual['gap_p'], 2)}) on "
-                + ", ".join(residual["significant"]) + "."]  # fmt: skip
+        return [
+            f"{added}, a significant gap remains (p {_fmt(residual['gap_p'], 2)}) on "
+            + ", ".join(residual["significant"])
+            + "."
+        ]
     return [f"{added}, no significant gap remains (p {_fmt(residual['gap_p'], 2)})."]
 
 
@@ -246,14 +276,19 @@ def _detectability_sentences(result: Diagnosis) -> list[str]:
     inert = [n for n, e in found.items() if e["verdict"] == "inert"]
     parts = []
     if blind:
-        parts.append(f"Tested against a fresh nominal draw, {sims} simulations against {sims} "
-                     f"(the gap test itself pools {2 * sims} against the real videos and sees "
-                     "more), "
-                     "these candidates show no gap at any strength tried; they are the hardest "
-                     "to rule out: " + ", ".join(blind) + ".")  # fmt: skip
+        parts.append(
+            f"Tested against a fresh nominal draw, {sims} simulations against {sims} "
+            f"(the gap test itself pools {2 * sims} against the real videos and sees "
+            "more), "
+            "these candidates show no gap at any strength tried; they are the hardest "
+            "to rule out: " + ", ".join(blind) + "."
+        )
     if inert:
-        parts.append("Inert in this scene (they change no feature at any strength tried): "
-                     + ", ".join(inert) + ".")  # fmt: skip
+        parts.append(
+            "Inert in this scene (they change no feature at any strength tried): "
+            + ", ".join(inert)
+            + "."
+        )
     return parts
 
 
@@ -263,15 +298,26 @@ def _detectability_lines(found: dict | None) -> list[str]:
         return []
 
     def listed(entry, keep):
-        cells = [f"{_fmt(v)} (p {_fmt(p, 2)})"
-                 for v, p, d, i in zip(entry["strengths"], entry["p"], entry["detected"],
-                                       entry["inert"], strict=True)
-                 if keep(d, i)]  # fmt: skip
+        cells = [
+            f"{_fmt(v)} (p {_fmt(p, 2)})"
+            for v, p, d, i in zip(
+                entry["strengths"], entry["p"], entry["detected"], entry["inert"], strict=True
+            )
+            if keep(d, i)
+        ]
         return ", ".join(cells) or "–"
 
-    rows = [[name, e["stage"], e["verdict"], listed(e, lambda d, i: d),
-             listed(e, lambda d, i: not d and not i), listed(e, lambda d, i: i)]
-            for name, e in found.items()]  # fmt: skip
+    rows = [
+        [
+            name,
+            e["stage"],
+            e["verdict"],
+            listed(e, lambda d, i: d),
+            listed(e, lambda d, i: not d and not i),
+            listed(e, lambda d, i: i),
+        ]
+        for name, e in found.items()
+    ]
     return [
         "### What the gap test can see",
         "",
@@ -297,23 +343,34 @@ def _swap_sentences(result: Diagnosis) -> list[str]:
     shown = list(result.location.significant)
     camera = swaps["camera"]
     if camera["rungs"]:
-        closed = ", ".join(f"{100 * camera['rungs'][r]['closure']:.0f} % on {r}" for r in shown
-                           if r in camera["rungs"])  # fmt: skip
-        out.append(f"Emulating R's measured camera statistics on S "
-                   f"({camera['set'].split(':', 1)[1]}) closes {closed}.")  # fmt: skip
+        closed = ", ".join(
+            f"{100 * camera['rungs'][r]['closure']:.0f} % on {r}"
+            for r in shown
+            if r in camera["rungs"]
+        )
+        out.append(
+            f"Emulating R's measured camera statistics on S "
+            f"({camera['set'].split(':', 1)[1]}) closes {closed}."
+        )
     else:
-        out.append("R's camera statistics (noise, blur, compression, frame rate, shake, colour "
-                   "cast) match S's.")  # fmt: skip
+        out.append(
+            "R's camera statistics (noise, blur, compression, frame rate, shake, colour "
+            "cast) match S's."
+        )
     norm = swaps["batchnorm"]
     layer = result.location.first_significant_layer
     if norm.get("available") and layer in norm["layers"]:
-        text = (f"Re-estimating the network's batch-norm statistics on R closes "
-                f"{100 * norm['layers'][layer]['closure']:.0f} % at {layer}")  # fmt: skip
+        text = (
+            f"Re-estimating the network's batch-norm statistics on R closes "
+            f"{100 * norm['layers'][layer]['closure']:.0f} % at {layer}"
+        )
         corr = norm.get("correlations", {}).get("material_score~stiffness")
         if corr:
             after = norm["correlations"]["after"]["material_score~stiffness"]
-            text += (f"; the material score's Spearman ρ with measured stiffness goes "
-                     f"{_fmt(corr['spearman'], 2)} -> {_fmt(after['spearman'], 2)}")  # fmt: skip
+            text += (
+                f"; the material score's Spearman ρ with measured stiffness goes "
+                f"{_fmt(corr['spearman'], 2)} -> {_fmt(after['spearman'], 2)}"
+            )
         out.append(text + ".")
     return out
 
@@ -323,8 +380,10 @@ def _shapley_lines(shapley: dict | None) -> list[str]:
         return []
     closure = shapley.get("closure", shapley["coalitions"])
     rows = [[n, f"{100 * shapley['values'][n]:.0f} %", ""] for n in shapley["players"]]
-    rows += [[f"together: {k}", f"{100 * closure[k]:.0f} %", f"{100 * v:.0f} %"]
-             for k, v in shapley["coalitions"].items()]  # fmt: skip
+    rows += [
+        [f"together: {k}", f"{100 * closure[k]:.0f} %", f"{100 * v:.0f} %"]
+        for k, v in shapley["coalitions"].items()
+    ]
     return [
         "Interactions: exact Shapley values over coalitions of the top candidates. Each "
         "coalition is measured with every member at its own fitted strength; as a joint fit "
@@ -346,16 +405,30 @@ def _joint_lines(joint: JointFit | None) -> list[str]:
     if joint is None:
         return []
     rows = [
-        [name, stage, ("nominal" if name not in joint.strengths
-                       else "on" if joint.strengths[name] is None else _fmt(joint.strengths[name])
-                       + (f" {_ci(joint.strength_interval[name])}"
-                          if name in joint.strength_interval else "")),
-         f"{100 * joint.shapley[name]:.0f} % {_percent_ci(joint.shapley_interval[name])}"
-         if name in joint.shapley else "–",
-         f"{100 * joint.reset[name]:.0f} % {_percent_ci(joint.reset_interval[name])}"
-         if name in joint.reset else "–"]
+        [
+            name,
+            stage,
+            (
+                "nominal"
+                if name not in joint.strengths
+                else "on"
+                if joint.strengths[name] is None
+                else _fmt(joint.strengths[name])
+                + (
+                    f" {_ci(joint.strength_interval[name])}"
+                    if name in joint.strength_interval
+                    else ""
+                )
+            ),
+            f"{100 * joint.shapley[name]:.0f} % {_percent_ci(joint.shapley_interval[name])}"
+            if name in joint.shapley
+            else "–",
+            f"{100 * joint.reset[name]:.0f} % {_percent_ci(joint.reset_interval[name])}"
+            if name in joint.reset
+            else "–",
+        ]
         for name, stage in joint.factors.items()
-    ]  # fmt: skip
+    ]
     shares = ", ".join(f"{stage} {100 * v:.0f} %" for stage, v in joint.stage_shares().items())
     return [
         "All factors together: the factors, chosen one at a time with the others in place "
@@ -401,8 +474,14 @@ def _stacked_lines(stacked: dict | None) -> list[str]:
     if not stacked or not stacked["partners"]:
         return []
     order = sorted(stacked["partners"].items(), key=lambda kv: -max(kv[1]["score"]))
-    rows = [[n, _fmt(v["strengths"][v["score"].index(max(v["score"]))]),
-             f"{100 * max(v['score']):.0f} %"] for n, v in order]  # fmt: skip
+    rows = [
+        [
+            n,
+            _fmt(v["strengths"][v["score"].index(max(v["score"]))]),
+            f"{100 * max(v['score']):.0f} %",
+        ]
+        for n, v in order
+    ]
     verdict = "explains the gap" if stacked["explained"] else "does not explain the gap"
     kernel = stacked["kernel_closure"]
     return [
@@ -428,9 +507,15 @@ def _predictivity_lines(srcc: dict | None) -> list[str]:
         ci = "" if entry["ci"] is None else f" {_ci(entry['ci'])}"
         return f"{_fmt(entry['srcc'], 2)}{ci} ({entry['checkpoints']} checkpoints)"
 
-    rows = [[Path(r["checkpoint"]).parent.parent.name + "/" + Path(r["checkpoint"]).name,
-             _fmt(r["sim"], 2), _fmt(r["sim_effect"], 2), _fmt(r["real"], 2)]
-            for r in srcc["rows"]]  # fmt: skip
+    rows = [
+        [
+            Path(r["checkpoint"]).parent.parent.name + "/" + Path(r["checkpoint"]).name,
+            _fmt(r["sim"], 2),
+            _fmt(r["sim_effect"], 2),
+            _fmt(r["real"], 2),
+        ]
+        for r in srcc["rows"]
+    ]
     return [
         "Sim-to-real predictivity (SRCC, Kadian et al. 2020): across checkpoints, Spearman "
         "of the score on simulated clips with the score on R (each score: ρ of the material "
@@ -455,21 +540,35 @@ def _shrink_section(shrink: dict | None) -> list[str]:
             b = shrink["correlations"]["before"][target]
             a = shrink["correlations"]["after"][target]
             ci_b, ci_a = b[f"{kind}_ci"], a[f"{kind}_ci"]
-            rows.append([
-                target, kind, _fmt(b[kind], 2), "–" if ci_b is None else _ci(ci_b),
-                _fmt(a[kind], 2), "–" if ci_a is None else _ci(ci_a),
-            ])  # fmt: skip
+            rows.append(
+                [
+                    target,
+                    kind,
+                    _fmt(b[kind], 2),
+                    "–" if ci_b is None else _ci(ci_b),
+                    _fmt(a[kind], 2),
+                    "–" if ci_a is None else _ci(ci_a),
+                ]
+            )
     gap_rows = [
-        [name, _fmt(r["corrected_auc_before"], 2), _fmt(r["corrected_auc_after"], 2),
-         _fmt(r.get("closure_predicted"), 2), _fmt(r["closure_realised"], 2)]
+        [
+            name,
+            _fmt(r["corrected_auc_before"], 2),
+            _fmt(r["corrected_auc_after"], 2),
+            _fmt(r.get("closure_predicted"), 2),
+            _fmt(r["closure_realised"], 2),
+        ]
         for name, r in shrink["rungs"].items()
-    ]  # fmt: skip
+    ]
     return [
         f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
         f"fine-tuned for {shrink['epochs']} epochs from the run's weights."
-        + ("" if shrink.get("closure_predicted_total") is None else
-           f" The calibrated simulator was predicted to close "
-           f"{100 * shrink['closure_predicted_total']:.0f} % of the gap."),
+        + (
+            ""
+            if shrink.get("closure_predicted_total") is None
+            else f" The calibrated simulator was predicted to close "
+            f"{100 * shrink['closure_predicted_total']:.0f} % of the gap."
+        ),
         "",
         *_predictivity_lines(shrink.get("predictivity")),
         markdown_table(["measured", "r", "before", "95 % CI", "after", "95 % CI"], rows),
@@ -500,14 +599,23 @@ def _score_correlation_lines(correlations: dict | None) -> list[str]:
         for score, by_column in by_score.items():
             for column, b in by_column.items():
                 a = after[scope][score][column]
-                change = (None if b["pearson"] is None or a["pearson"] is None
-                          else a["pearson"] - b["pearson"])  # fmt: skip
-                rows.append([
-                    "pooled" if scope == "all" else scope, score, column,
-                    _fmt(b["pearson"], 2), "–" if b["pearson_ci"] is None else _ci(b["pearson_ci"]),
-                    _fmt(a["pearson"], 2), "–" if a["pearson_ci"] is None else _ci(a["pearson_ci"]),
-                    _fmt(change, 2),
-                ])  # fmt: skip
+                change = (
+                    None
+                    if b["pearson"] is None or a["pearson"] is None
+                    else a["pearson"] - b["pearson"]
+                )
+                rows.append(
+                    [
+                        "pooled" if scope == "all" else scope,
+                        score,
+                        column,
+                        _fmt(b["pearson"], 2),
+                        "–" if b["pearson_ci"] is None else _ci(b["pearson_ci"]),
+                        _fmt(a["pearson"], 2),
+                        "–" if a["pearson_ci"] is None else _ci(a["pearson_ci"]),
+                        _fmt(change, 2),
+                    ]
+                )
     header = ["videos", "score", "measured", "before", "95 % CI", "after", "95 % CI", "change"]
     return [
         "",
@@ -523,23 +631,43 @@ def _rung_rows(result: Diagnosis) -> list[list]:
     pooled = result.detection_rungs or {}
     for name, gap in result.rungs.items():
         probe = result.probes.get(name, {})
-        rows.append([
-            name, _fmt(gap["mmd2"]), _ci(gap["mmd2_ci"]), _fmt(gap["floor_mmd2"]),
-            _fmt(gap["auc"], 2), _ci(gap["auc_ci"]), _fmt(gap["floor_auc"], 2),
-            _fmt(gap["p_value"], 2), _fmt(gap.get("p_c2st"), 2),
-            _fmt(pooled.get(name, {}).get("p_gap"), 2),
-            "yes" if name in result.location.significant else "",
-            "yes" if name in result.location.bonferroni else "",
-            _fmt(probe.get("stiffness_spearman"), 2), _fmt(probe.get("density_spearman"), 2),
-        ])  # fmt: skip
+        rows.append(
+            [
+                name,
+                _fmt(gap["mmd2"]),
+                _ci(gap["mmd2_ci"]),
+                _fmt(gap["floor_mmd2"]),
+                _fmt(gap["auc"], 2),
+                _ci(gap["auc_ci"]),
+                _fmt(gap["floor_auc"], 2),
+                _fmt(gap["p_value"], 2),
+                _fmt(gap.get("p_c2st"), 2),
+                _fmt(pooled.get(name, {}).get("p_gap"), 2),
+                "yes" if name in result.location.significant else "",
+                "yes" if name in result.location.bonferroni else "",
+                _fmt(probe.get("stiffness_spearman"), 2),
+                _fmt(probe.get("density_spearman"), 2),
+            ]
+        )
     return rows
 
 
 _RUNG_HEADER = [
-    "rung", "MMD²", "95 % CI", "floor", "AUC", "95 % CI", "floor AUC", "p (MMD²)", "p (C2ST)",
-    "p, S + S' vs R", "shows the gap", "on its own",
-    "probe ρ stiffness", "probe ρ density",
-]  # fmt: skip
+    "rung",
+    "MMD²",
+    "95 % CI",
+    "floor",
+    "AUC",
+    "95 % CI",
+    "floor AUC",
+    "p (MMD²)",
+    "p (C2ST)",
+    "p, S + S' vs R",
+    "shows the gap",
+    "on its own",
+    "probe ρ stiffness",
+    "probe ρ density",
+]
 
 
 def _percent(value: float | None) -> str:
@@ -555,19 +683,34 @@ def _candidate_rows(result: Diagnosis) -> list[list]:
         closure = entry.get("closure_auc") or entry["closure"]
         closes = [f"{100 * closure[r][best]:.0f} %" for r in rungs]
         lo, hi = entry["strength_interval"]
-        rows.append([
-            rank, name, entry["stage"], _fmt(entry["best_strength"]),
-            "" if lo is None else f"[{_fmt(lo)}, {_fmt(hi)}]",
-            f"{100 * entry['best_score']:.0f} %", _percent(entry.get("kernel_closure")),
-            *closes,
-        ])  # fmt: skip
+        rows.append(
+            [
+                rank,
+                name,
+                entry["stage"],
+                _fmt(entry["best_strength"]),
+                "" if lo is None else f"[{_fmt(lo)}, {_fmt(hi)}]",
+                f"{100 * entry['best_score']:.0f} %",
+                _percent(entry.get("kernel_closure")),
+                *closes,
+            ]
+        )
     null = result.null
     if null is not None:
         closure = null.get("closure_auc") or null["closure"]
         closes = [f"{100 * closure[r][0]:.0f} %" for r in rungs]
-        rows.append(["–", "S' (fresh nominal draw)", "null", "", "",
-                     f"{100 * null['best_score']:.0f} %", _percent(null.get("kernel_closure")),
-                     *closes])  # fmt: skip
+        rows.append(
+            [
+                "–",
+                "S' (fresh nominal draw)",
+                "null",
+                "",
+                "",
+                f"{100 * null['best_score']:.0f} %",
+                _percent(null.get("kernel_closure")),
+                *closes,
+            ]
+        )
     return rows
 
 
@@ -575,10 +718,18 @@ def _closure_table(first: str, rungs: dict) -> str:
     """A swap's gap per rung before and after (:func:`sim2real.counterfactuals.swap_closure`)."""
     return markdown_table(
         [first, "MMD² before", "after", "closed", "corrected AUC before", "after"],
-        [[r, _fmt(v["mmd2_before"]), _fmt(v["mmd2_after"]), f"{100 * v['closure']:.0f} %",
-          _fmt(v["corrected_auc_before"], 2), _fmt(v["corrected_auc_after"], 2)]
-         for r, v in rungs.items()],
-    )  # fmt: skip
+        [
+            [
+                r,
+                _fmt(v["mmd2_before"]),
+                _fmt(v["mmd2_after"]),
+                f"{100 * v['closure']:.0f} %",
+                _fmt(v["corrected_auc_before"], 2),
+                _fmt(v["corrected_auc_after"], 2),
+            ]
+            for r, v in rungs.items()
+        ],
+    )
 
 
 def _swap_lines(swaps: dict | None) -> list[str]:
@@ -588,10 +739,17 @@ def _swap_lines(swaps: dict | None) -> list[str]:
     lines = ["### Counterfactual stage swaps", ""]
     camera = swaps["camera"]
     rows = [
-        [name, m["statistic"] or "none found", _fmt(m.get("nominal")), _fmt(m.get("real")),
-         _fmt(m.get("z"), 2), "yes" if m["present"] else "no", _fmt(m["strength"])]
+        [
+            name,
+            m["statistic"] or "none found",
+            _fmt(m.get("nominal")),
+            _fmt(m.get("real")),
+            _fmt(m.get("z"), 2),
+            "yes" if m["present"] else "no",
+            _fmt(m["strength"]),
+        ]
         for name, m in camera["matched"].items()
-    ]  # fmt: skip
+    ]
     lines += [
         "**Camera of R emulated on S.** Each camera effect's signature statistic (the clip "
         "statistic it moves most and the other camera effects least) measured on S and R; an "
@@ -622,12 +780,16 @@ def _swap_lines(swaps: dict | None) -> list[str]:
         for key, before in norm["correlations"]["before"].items():
             after = norm["correlations"]["after"][key]
             score, target = key.split("~")
-            rows.append([
-                score, target, _fmt(before["spearman"], 2),
-                "–" if before["spearman_ci"] is None else _ci(before["spearman_ci"]),
-                _fmt(after["spearman"], 2),
-                "–" if after["spearman_ci"] is None else _ci(after["spearman_ci"]),
-            ])  # fmt: skip
+            rows.append(
+                [
+                    score,
+                    target,
+                    _fmt(before["spearman"], 2),
+                    "–" if before["spearman_ci"] is None else _ci(before["spearman_ci"]),
+                    _fmt(after["spearman"], 2),
+                    "–" if after["spearman_ci"] is None else _ci(after["spearman_ci"]),
+                ]
+            )
         lines += [
             "The model's scores on R (per video) against the measured values, Spearman ρ "
             "before and after AdaBN:",
@@ -642,9 +804,18 @@ def _swap_lines(swaps: dict | None) -> list[str]:
 def document(result: Diagnosis, figures: list[str]) -> list:
     """The report as lines of Markdown and tables (:class:`models.report.MarkdownTable`)."""
     lead = [f for f in figures if f == "shares.png"]
-    lines = [f"# Sim-to-real diagnosis: {result.name}", "", answer(result), "",
-             *[f"![{f}]({f})" for f in lead], "", "## Evidence", "", verdict(result),
-             ""]  # fmt: skip
+    lines = [
+        f"# Sim-to-real diagnosis: {result.name}",
+        "",
+        answer(result),
+        "",
+        *[f"![{f}]({f})" for f in lead],
+        "",
+        "## Evidence",
+        "",
+        verdict(result),
+        "",
+    ]
     info = result.inputs
     lines += [
         f"Real set: `{info.real_dir}` ({info.real_videos} videos, {info.real_clips} "
@@ -756,11 +927,10 @@ def _figures(result: Diagnosis, out_dir: Path) -> list[str]:
     stages = [result.candidates[n]["stage"] for n in ranking]
     fig, ax = plt.subplots(figsize=(9, 0.28 * len(ranking) + 1.4), dpi=100)
     ax.barh(ranking[::-1], scores[::-1], color=[STAGE_COLOURS[s] for s in stages[::-1]])
+    ax.axvline(result.ranking.threshold, color="k", linestyle="--", label="open-set threshold")
     ax.axvline(
-        result.ranking.threshold, color="k", linestyle="--", label="open-set threshold"
+        result.ranking.null_score, color="#7f7f7f", linestyle=":", label="fresh nominal draw S'"
     )
-    ax.axvline(result.ranking.null_score, color="#7f7f7f", linestyle=":",
-               label="fresh nominal draw S'")  # fmt: skip
     ax.set_xlim(-1, 1)
     ax.set_xlabel("fraction of the floor-corrected gap closed (scored rungs, fitted strength)")
     ax.legend(loc="lower left", fontsize=8)
@@ -827,5 +997,7 @@ def write_report(result: Diagnosis, out_dir: Path, extra_figures: tuple[str, ...
     markdown = _markdown(result, figures)
     write_json(out_dir / "report.json", result.to_json())
     write_text(out_dir / "report.md", markdown)
-    write_text(out_dir / "report.html",
-               render_html(document(result, figures), f"Sim-to-real diagnosis: {result.name}"))
+    write_text(
+        out_dir / "report.html",
+        render_html(document(result, figures), f"Sim-to-real diagnosis: {result.name}"),
+    )

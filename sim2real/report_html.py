@@ -55,8 +55,13 @@ def blocks(items: Iterable) -> list[dict]:
     for item in items:
         if isinstance(item, MarkdownTable):
             flush()
-            out.append({"kind": "table", "header": [_spans(str(h)) for h in item.header],
-                        "rows": [[_spans(str(c)) for c in row] for row in item.rows]})  # fmt: skip
+            out.append(
+                {
+                    "kind": "table",
+                    "header": [_spans(str(h)) for h in item.header],
+                    "rows": [[_spans(str(c)) for c in row] for row in item.rows],
+                }
+            )
             continue
         for line in str(item).split("\n"):
             stripped = line.strip()

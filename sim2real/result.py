@@ -33,10 +33,14 @@ def _split(cls, data: Mapping[str, Any], what: str) -> tuple[dict, dict]:
         raise ValueError(f"{what} must be a mapping, got {type(data).__name__}")
     names = set(_fields(cls))
     known = {k: v for k, v in data.items() if k in names}
-    missing = [f.name for f in dataclasses.fields(cls)
-               if f.name in names and f.name not in known
-               and f.default is dataclasses.MISSING
-               and f.default_factory is dataclasses.MISSING]  # fmt: skip
+    missing = [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.name in names
+        and f.name not in known
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
     if missing:
         raise ValueError(f"{what} lacks {missing[0]!r}")
     return known, {k: v for k, v in data.items() if k not in names}

@@ -96,20 +96,28 @@ def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) ->
     from omegaconf import OmegaConf
 
     for key, value in {
-        "dataset.dir": str(data_dir), "paths.output_dir": str(out),
-        "paths.log_dir": str(out.parent), "paths.work_dir": str(out),
-        "init_from": str(checkpoint), "trainer.max_epochs": epochs, "test": False,
+        "dataset.dir": str(data_dir),
+        "paths.output_dir": str(out),
+        "paths.log_dir": str(out.parent),
+        "paths.work_dir": str(out),
+        "init_from": str(checkpoint),
+        "trainer.max_epochs": epochs,
+        "test": False,
         "ckpt_path": "auto",
-    }.items():  # fmt: skip
+    }.items():
         OmegaConf.update(cfg, key, value, force_add=True)
     OmegaConf.update(cfg, "data.data_dirs", [str(data_dir)], force_add=True)
     snapshots = {  # one checkpoint per epoch: the models whose ranking section 3 compares
         "_target_": "lightning.pytorch.callbacks.ModelCheckpoint",
-        "dirpath": str(out / "checkpoints"), "filename": "epoch{epoch:02d}", "monitor": None,
-        "save_top_k": -1, "every_n_epochs": 1, "auto_insert_metric_name": False,
+        "dirpath": str(out / "checkpoints"),
+        "filename": "epoch{epoch:02d}",
+        "monitor": None,
+        "save_top_k": -1,
+        "every_n_epochs": 1,
+        "auto_insert_metric_name": False,
         "enable_version_counter": False,
         "mode": "max",  # unused without a monitor; tells its state key from last.ckpt's
-    }  # fmt: skip
+    }
     OmegaConf.update(cfg, "callbacks.epoch_snapshots", snapshots, force_add=True)
     from models.training import train
 
@@ -120,8 +128,9 @@ def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) ->
     return best
 
 
-def _correlations(module, real_dir, out, spec: DatasetSpec, clip_len, clip_stride,
-                  columns, group) -> dict:  # fmt: skip
+def _correlations(
+    module, real_dir, out, spec: DatasetSpec, clip_len, clip_stride, columns, group
+) -> dict:
     """The real set's evaluation (:func:`models.evaluate.evaluate_real`).
 
     Every score against every column, pooled and per wind, with grouped bootstrap intervals.
@@ -129,9 +138,16 @@ def _correlations(module, real_dir, out, spec: DatasetSpec, clip_len, clip_strid
     from models.evaluate import evaluate_real
 
     return evaluate_real(
-        module, real_dir, out, columns=columns, group=group, clip_len=clip_len,
-        clip_stride=clip_stride, target_fps=spec.preset.fps, size=spec.camera.height,
-    )  # fmt: skip
+        module,
+        real_dir,
+        out,
+        columns=columns,
+        group=group,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        target_fps=spec.preset.fps,
+        size=spec.camera.height,
+    )
 
 
 def shrink(
@@ -174,41 +190,76 @@ def shrink(
 
     clip_len, clip_stride = inputs.clip_len, inputs.clip_stride
     real_dir = Path(inputs.real_dir)
-    before = _correlations(load_classifier(checkpoint), real_dir, out / "before", train_spec,
-                           clip_len, clip_stride, columns, group)  # fmt: skip
-    after = _correlations(load_classifier(after_ckpt), real_dir, out / "after", train_spec,
-                          clip_len, clip_stride, columns, group)  # fmt: skip
+    before = _correlations(
+        load_classifier(checkpoint),
+        real_dir,
+        out / "before",
+        train_spec,
+        clip_len,
+        clip_stride,
+        columns,
+        group,
+    )
+    after = _correlations(
+        load_classifier(after_ckpt),
+        real_dir,
+        out / "after",
+        train_spec,
+        clip_len,
+        clip_stride,
+        columns,
+        group,
+    )
 
     # The gap after: S with the effect vs R, both seen by the fine-tuned network.
     nominal = DatasetSpec.from_json(inputs.nominal_spec)
     context = SetContext(
-        box=tuple(inputs.box), checkpoint=str(after_ckpt),
-        checkpoint_digest=file_digest(after_ckpt), mesh_cache=inputs.mesh_cache,
-        cache_dir=inputs.cache_dir, clip_len=clip_len, clip_stride=clip_stride,
+        box=tuple(inputs.box),
+        checkpoint=str(after_ckpt),
+        checkpoint_digest=file_digest(after_ckpt),
+        mesh_cache=inputs.mesh_cache,
+        cache_dir=inputs.cache_dir,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
         device=inputs.device,
-    )  # fmt: skip
+    )
     path, _ = build_set(SetJob("S_e", _apply(nominal, chosen)), context)
     sim_after = LadderFeatures.load(Path(path))
     budget = inputs.budget_settings
-    clips = real_clips(real_dir, size=nominal.camera.height, clip_len=clip_len,
-                       clip_stride=clip_stride, fps=nominal.preset.fps,
-                       max_clips_per_video=budget["clips_per_sim"])  # fmt: skip
-    real_after = real_ladder(real_dir, clips, context, fps=nominal.preset.fps,
-                             max_clips=budget["clips_per_sim"])  # fmt: skip
+    clips = real_clips(
+        real_dir,
+        size=nominal.camera.height,
+        clip_len=clip_len,
+        clip_stride=clip_stride,
+        fps=nominal.preset.fps,
+        max_clips_per_video=budget["clips_per_sim"],
+    )
+    real_after = real_ladder(
+        real_dir, clips, context, fps=nominal.preset.fps, max_clips=budget["clips_per_sim"]
+    )
     gaps_after = rung_gaps(
-        sim_after, real_after, n_perm=budget["n_perm"], n_boot=budget["n_boot"],
-        n_floor=budget["n_floor"], seed=seed,
-    )  # fmt: skip
+        sim_after,
+        real_after,
+        n_perm=budget["n_perm"],
+        n_boot=budget["n_boot"],
+        n_floor=budget["n_floor"],
+        seed=seed,
+    )
     # Sim-to-real predictivity over the run's checkpoints and the fine-tuned epochs.
-    checkpoints = [checkpoint, *[p for p in (run / "checkpoints" / "last.ckpt",)
-                                 if p.is_file() and p != checkpoint]]  # fmt: skip
+    checkpoints = [
+        checkpoint,
+        *[p for p in (run / "checkpoints" / "last.ckpt",) if p.is_file() and p != checkpoint],
+    ]
     checkpoints += sorted((out / "train" / "checkpoints").glob("epoch*.ckpt"))
     cut = {"clip_len": clip_len, "clip_stride": clip_stride}
     srcc = predictivity(
-        checkpoints, simulated_clips(nominal, inputs.mesh_cache, **cut),
-        simulated_clips(_apply(nominal, chosen), inputs.mesh_cache, **cut), clips,
-        device=inputs.device, seed=seed,
-    )  # fmt: skip
+        checkpoints,
+        simulated_clips(nominal, inputs.mesh_cache, **cut),
+        simulated_clips(_apply(nominal, chosen), inputs.mesh_cache, **cut),
+        clips,
+        device=inputs.device,
+        seed=seed,
+    )
     top = chosen[0][0]
     predicted = result.candidates.get(top) if len(chosen) == 1 else None
     rungs = {}
@@ -218,8 +269,11 @@ def shrink(
         realised = None
         if before_auc and before_auc > 0 and after_auc == after_auc:
             realised = (before_auc - after_auc) / before_auc
-        entry = {"corrected_auc_before": before_auc, "corrected_auc_after": after_auc,
-                 "closure_realised": realised}  # fmt: skip
+        entry = {
+            "corrected_auc_before": before_auc,
+            "corrected_auc_after": after_auc,
+            "closure_realised": realised,
+        }
         if predicted is not None:  # the classifier closure where scored, else the MMD² one
             source = {**predicted["closure"], **(predicted.get("closure_auc") or {})}
             if name in source:
@@ -227,17 +281,24 @@ def shrink(
         rungs[name] = entry
     section = {
         "effects": [{"name": n, "strength": s} for n, s in chosen],
-        "preset": preset, "epochs": epochs, "retrain_spec_key": retrain_spec.key(),
+        "preset": preset,
+        "epochs": epochs,
+        "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
-        "correlations": {"before": before["correlations"]["all"],
-                         "after": after["correlations"]["all"]},
-        "score_correlations": {"before": before["score_correlations"],
-                               "after": after["score_correlations"]},
+        "correlations": {
+            "before": before["correlations"]["all"],
+            "after": after["correlations"]["all"],
+        },
+        "score_correlations": {
+            "before": before["score_correlations"],
+            "after": after["score_correlations"],
+        },
         "rungs": rungs,
         "predictivity": srcc,
-        "closure_predicted_total": (result.joint.closure if result.joint is not None
-                                    and len(chosen) > 1 else None),
-    }  # fmt: skip
+        "closure_predicted_total": (
+            result.joint.closure if result.joint is not None and len(chosen) > 1 else None
+        ),
+    }
     result = dataclasses.replace(result, shrink=json_safe(section))
     write_report(result, report_dir, extra_figures=("clips.png",))
     return result.shrink
@@ -257,15 +318,25 @@ def run(cfg) -> dict:
     if effects is not None and (not isinstance(effects, str) or not effects.strip()):
         raise InputError(f"effects must be name=strength,... or null, got {effects!r}")
     columns = cfg.columns
-    if (not OmegaConf.is_list(columns) or not columns
-            or not all(isinstance(c, str) and c for c in columns)):  # fmt: skip
+    if (
+        not OmegaConf.is_list(columns)
+        or not columns
+        or not all(isinstance(c, str) and c for c in columns)
+    ):
         raise InputError(f"columns must be a non-empty list of labels.csv columns, got {columns!r}")
     if cfg.group is not None and not isinstance(cfg.group, str):
         raise InputError(f"group must be a labels.csv column or null, got {cfg.group!r}")
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
-        return shrink(cfg.report, epochs=epochs, preset=str(cfg.preset), effects=effects,
-                      n_jobs=n_jobs, columns=list(columns), group=cfg.group)  # fmt: skip
+        return shrink(
+            cfg.report,
+            epochs=epochs,
+            preset=str(cfg.preset),
+            effects=effects,
+            n_jobs=n_jobs,
+            columns=list(columns),
+            group=cfg.group,
+        )
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None
 

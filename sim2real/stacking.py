@@ -72,19 +72,29 @@ def stacked_fit(
     strength = leader_result.best_strength
     jobs = {
         stack_label(leader, strength, c, v): _stacked_spec(spec, leader, strength, c, v)
-        for c, values, _ in partners for v in values
-    }  # fmt: skip
+        for c, values, _ in partners
+        for v in values
+    }
     build(jobs)
     fits = {
-        c.name: score(c.name, c.stage, values,
-                      [stack_label(leader, strength, c, v) for v in values])
+        c.name: score(
+            c.name, c.stage, values, [stack_label(leader, strength, c, v) for v in values]
+        )
         for c, values, _ in partners
-    }  # fmt: skip
-    out = {"leader": leader.name, "leader_strength": strength,
-           "partners": {n: {"strengths": list(r.strengths), "score": r.score}
-                        for n, r in fits.items()},
-           "best": None, "best_strength": None, "refit": None, "score": None,
-           "kernel_closure": None, "explained": False}  # fmt: skip
+    }
+    out = {
+        "leader": leader.name,
+        "leader_strength": strength,
+        "partners": {
+            n: {"strengths": list(r.strengths), "score": r.score} for n, r in fits.items()
+        },
+        "best": None,
+        "best_strength": None,
+        "refit": None,
+        "score": None,
+        "kernel_closure": None,
+        "explained": False,
+    }
     if not fits:
         return out
     name = max(fits, key=lambda n: fits[n].best_score)
@@ -96,16 +106,20 @@ def stacked_fit(
         refit = {
             stack_label(partner, value, leader, u): _stacked_spec(spec, partner, value, leader, u)
             for u in leader_grid
-        }  # fmt: skip
+        }
         build(refit)
         again = score(leader.name, leader.stage, tuple(leader_grid), list(refit))
-        out["refit"] = {"strengths": list(again.strengths), "score": again.score,
-                        "best_strength": again.best_strength}  # fmt: skip
+        out["refit"] = {
+            "strengths": list(again.strengths),
+            "score": again.score,
+            "best_strength": again.best_strength,
+        }
         if again.best_score > fit.best_score:
             pair = again
     closes = kernel(pair)
-    out.update(best=name, best_strength=fit.best_strength, score=pair.best_score,
-               kernel_closure=closes)  # fmt: skip
+    out.update(
+        best=name, best_strength=fit.best_strength, score=pair.best_score, kernel_closure=closes
+    )
     if pair is not fit:
         out["leader_strength"] = pair.best_strength
     out["explained"] = explains_together(
@@ -116,6 +130,11 @@ def stacked_fit(
 
 def explained_by_stack(ranking: dict, fit: dict) -> dict:
     """``ranking`` with its gap explained by a stacked ``fit``'s pair (the leader named first)."""
-    return {**ranking, "explained": True, "look_alike": False,
-            "explained_by": [ranking["top"], fit["best"]], "explained_by_score": fit["score"],
-            "explained_by_kernel_closure": fit["kernel_closure"]}  # fmt: skip
+    return {
+        **ranking,
+        "explained": True,
+        "look_alike": False,
+        "explained_by": [ranking["top"], fit["best"]],
+        "explained_by_score": fit["score"],
+        "explained_by_kernel_closure": fit["kernel_closure"],
+    }

@@ -27,6 +27,7 @@ __all__ = ["SCHEMA_VERSION", "MeshSequence"]
 
 SCHEMA_VERSION = 1
 
+
 @dataclasses.dataclass(frozen=True)
 class MeshSequence:
     """Recorded frames of B simulated cloth instances."""

@@ -60,9 +60,11 @@ THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
 _OPENBLAS_SETTERS = (
-    "openblas_set_num_threads", "openblas_set_num_threads64_",
-    "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_",
-)  # fmt: skip
+    "openblas_set_num_threads",
+    "openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads",
+    "scipy_openblas_set_num_threads64_",
+)
 """The setter's name in a plain OpenBLAS, an ILP64 one, and NumPy's and SciPy's wheels."""
 
 
@@ -84,8 +86,7 @@ def limit_openblas_threads(threads: int) -> int:
             library = ctypes.CDLL(path)
         except OSError:
             continue
-        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)),
-                      None)  # fmt: skip
+        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
         if setter is not None:
             setter(ctypes.c_int(threads))
             count += 1

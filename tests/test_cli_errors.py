@@ -84,11 +84,13 @@ def test_cuda_requests_without_cuda_are_refused(tmp_path, monkeypatch):
         ("data.batch_size=abc", "data.batch_size must be an integer, got 'abc'"),
         ("data.batch_size=0", "batch_size must be an integer >= 1, got 0"),
         ("model.optimizer.lr=abc", "model.optimizer.lr must be a number, got 'abc'"),
-        ("callbacks.early_stopping.patience=x",
-         "callbacks.early_stopping.patience must be an integer, got 'x'"),
+        (
+            "callbacks.early_stopping.patience=x",
+            "callbacks.early_stopping.patience must be an integer, got 'x'",
+        ),
         ("encoder.width=wide", "model.net.encoder.width must be a number, got 'wide'"),
     ],
-)  # fmt: skip
+)
 def test_train_checks_fields_before_reading_data(override, message, tmp_path):
     # data.batch_size=0 passes the type check and is refused by the datamodule itself,
     # before the run folder gets its dataset record.
@@ -116,15 +118,21 @@ def _empty_dataset(tmp_path):
         (["tissue_job=ukf", "tissue_job.trials=abc"], "tissue_job.trials must be an integer"),
         (["tissue_job=ukf", "tissue_job.trials=0"], "tissue_job.trials must be an integer >= 1"),
         (["tissue_job=ukf", "tissue_job.body=lung"], "tissue_job.body must be one of beam, heart"),
-        (["tissue_job=ukf", "tissue_job.moduli_kpa=[40,-1]"],
-         "tissue_job.moduli_kpa must be a number > 0, got -1"),
-        (["tissue_job=tables", "tissue_job.only=[t33]"],
-         "tissue_job.only must be one of t31, t32, sens; got 't33'"),
-        (["tissue_job=monocular", "tissue_job.elements=[256,abc]"],
-         "tissue_job.elements must be a list of integers"),
+        (
+            ["tissue_job=ukf", "tissue_job.moduli_kpa=[40,-1]"],
+            "tissue_job.moduli_kpa must be a number > 0, got -1",
+        ),
+        (
+            ["tissue_job=tables", "tissue_job.only=[t33]"],
+            "tissue_job.only must be one of t31, t32, sens; got 't33'",
+        ),
+        (
+            ["tissue_job=monocular", "tissue_job.elements=[256,abc]"],
+            "tissue_job.elements must be a list of integers",
+        ),
         (["seed=abc"], "seed must be an integer >= 0, got 'abc'"),
     ],
-)  # fmt: skip
+)
 def test_tissue_job_fields_are_checked_before_the_job_writes(overrides, message, tmp_path):
     out = tmp_path / "out"
     cfg = _compose("tissue", f"out_dir={out}", "paths.output_dir=/tmp/unused", *overrides)
@@ -146,8 +154,14 @@ def test_tissue_job_fields_are_checked_before_the_job_writes(overrides, message,
     ],
 )
 def test_diagnose_checks_fields_before_it_starts(override, message, tmp_path):
-    cfg = _compose("diagnose", f"real_dir={tmp_path}/real", f"run={tmp_path}/run",
-                   f"out_dir={tmp_path}/out", "paths.output_dir=/tmp/unused", override)  # fmt: skip
+    cfg = _compose(
+        "diagnose",
+        f"real_dir={tmp_path}/real",
+        f"run={tmp_path}/run",
+        f"out_dir={tmp_path}/out",
+        "paths.output_dir=/tmp/unused",
+        override,
+    )
     with pytest.raises(InputError) as info:
         diagnose_entry.run(cfg)
     assert str(info.value) == message
@@ -157,23 +171,33 @@ def test_diagnose_checks_fields_before_it_starts(override, message, tmp_path):
 @pytest.mark.parametrize(
     ("command", "line"),
     [
-        (["-m", "simulator.cloth.simulate", "classes=[1.7]"],
-         "error: classes[0] must be an integer class id in [0, 53], got 1.7"),
+        (
+            ["-m", "simulator.cloth.simulate", "classes=[1.7]"],
+            "error: classes[0] must be an integer class id in [0, 53], got 1.7",
+        ),
         (["-m", "datasets.generate", "seed=abc"], "error: seed must be an integer >= 0, got 'abc'"),
-        (["train.py", "trainer.max_epochs=abc"],
-         "error: trainer.max_epochs must be an integer or null, got 'abc'"),
-        (["-m", "benchmarks.thesis.tissue_jobs", "tissue_job=ukf", "tissue_job.trials=abc"],
-         "error: tissue_job.trials must be an integer, got 'abc'"),
+        (
+            ["train.py", "trainer.max_epochs=abc"],
+            "error: trainer.max_epochs must be an integer or null, got 'abc'",
+        ),
+        (
+            ["-m", "benchmarks.thesis.tissue_jobs", "tissue_job=ukf", "tissue_job.trials=abc"],
+            "error: tissue_job.trials must be an integer, got 'abc'",
+        ),
     ],
-)  # fmt: skip
+)
 def test_entry_points_print_one_line_and_exit_2(command, line, tmp_path):
     env = subprocess_env()
     if command[0] == "train.py":
         command = [str(ROOT / "train.py"), *command[1:]]
     done = subprocess.run(
         [sys.executable, *command, f"paths.root_dir={tmp_path}"],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines() == [line]
     assert "Traceback" not in done.stdout + done.stderr
@@ -196,8 +220,9 @@ EXPERIMENTS = [  # every method on every dataset under every split protocol, and
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS, ids=" ".join)
 def test_every_training_experiment_passes_the_field_checks(experiment):
-    train_entry._check_fields(_compose("train", *experiment, "trainer=cpu",
-                                       "paths.output_dir=/tmp/unused"))  # fmt: skip
+    train_entry._check_fields(
+        _compose("train", *experiment, "trainer=cpu", "paths.output_dir=/tmp/unused")
+    )
 
 
 @pytest.mark.parametrize("motion", ["wind", "arm"])

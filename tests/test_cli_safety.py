@@ -30,9 +30,13 @@ def _compose(config, *overrides):
 
 def _run(args, cwd, timeout=120):
     return subprocess.run(
-        [sys.executable, *args], cwd=cwd, env=subprocess_env(), capture_output=True, text=True,
+        [sys.executable, *args],
+        cwd=cwd,
+        env=subprocess_env(),
+        capture_output=True,
+        text=True,
         timeout=timeout,
-    )  # fmt: skip
+    )
 
 
 @pytest.mark.parametrize("name", ["../../escaped", "a/b", ".."])
@@ -48,15 +52,22 @@ def test_a_run_name_that_is_a_path_makes_no_folder(name, tmp_path):
 
 
 def test_a_task_name_that_is_a_path_makes_no_folder(tmp_path):
-    done = _run(["-m", "simulator.cloth.simulate", "task_name=../x",
-                 f"paths.log_dir={tmp_path}/logs"], tmp_path)  # fmt: skip
+    done = _run(
+        ["-m", "simulator.cloth.simulate", "task_name=../x", f"paths.log_dir={tmp_path}/logs"],
+        tmp_path,
+    )
     assert done.returncode == 2 and "task_name must be a single" in done.stderr
     assert list(tmp_path.iterdir()) == []
 
 
 def test_diagnose_refuses_a_report_name_that_is_a_path(tmp_path):
-    cfg = _compose("diagnose", f"real_dir={tmp_path}/real", f"run={tmp_path}/run",
-                   "name=../../x", "paths.output_dir=/tmp/unused")  # fmt: skip
+    cfg = _compose(
+        "diagnose",
+        f"real_dir={tmp_path}/real",
+        f"run={tmp_path}/run",
+        "name=../../x",
+        "paths.output_dir=/tmp/unused",
+    )
     with pytest.raises(InputError, match=r"^name must be a single file or folder name"):
         diagnose_entry.run(cfg)
     assert list(tmp_path.iterdir()) == []
@@ -75,14 +86,14 @@ def _refuse_to_simulate(*args, **kwargs):
         ("export=obj", r"^export: .*frames_obj exists and is not a folder$"),
     ],
 )
-def test_simulate_checks_its_destination_before_simulating(override, message, tmp_path,
-                                                           monkeypatch):  # fmt: skip
+def test_simulate_checks_its_destination_before_simulating(
+    override, message, tmp_path, monkeypatch
+):
     monkeypatch.setattr(simulate_entry, "simulate", _refuse_to_simulate)
     (tmp_path / "file").write_text("x")
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "frames_obj").write_text("a file where the frames go")
-    cfg = _compose("simulate", f"paths.output_dir={tmp_path}/out",
-                   override.format(tmp=tmp_path))  # fmt: skip
+    cfg = _compose("simulate", f"paths.output_dir={tmp_path}/out", override.format(tmp=tmp_path))
     with pytest.raises(InputError, match=message):
         simulate_entry.run(cfg)
 
@@ -95,17 +106,33 @@ def _group(pgid: int) -> list[str]:
 def _start(command, tmp_path):
     """``command`` in a process group of its own that takes Ctrl-C as a terminal's would."""
     return subprocess.Popen(
-        [sys.executable, *command], cwd=tmp_path, env=subprocess_env(), stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True, start_new_session=True,
+        [sys.executable, *command],
+        cwd=tmp_path,
+        env=subprocess_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )  # fmt: skip
+    )
 
 
 def _start_generation(tmp_path):
     """A two-worker generation in a process group of its own, once its workers run."""
-    proc = _start(["-m", "datasets.generate", "preset=tiny", "classes=[0,53]", "render=tiny",
-                   "n_jobs=2", f"out_dir={tmp_path}/data", f"mesh_cache={tmp_path}/mesh",
-                   f"paths.log_dir={tmp_path}/logs"], tmp_path)  # fmt: skip
+    proc = _start(
+        [
+            "-m",
+            "datasets.generate",
+            "preset=tiny",
+            "classes=[0,53]",
+            "render=tiny",
+            "n_jobs=2",
+            f"out_dir={tmp_path}/data",
+            f"mesh_cache={tmp_path}/mesh",
+            f"paths.log_dir={tmp_path}/logs",
+        ],
+        tmp_path,
+    )
     deadline = time.monotonic() + 90
     while time.monotonic() < deadline and proc.poll() is None:
         if sum("LokyProcess" in line for line in _group(proc.pid)) >= 2:
@@ -151,17 +178,32 @@ def test_power_preview_and_validate_refuse_bad_input_in_one_line(tmp_path, capsy
     (tmp_path / "empty").mkdir()
     cases = [
         (power_main, [str(tmp_path / "bad.json")], "error: reports: ", "is not JSON"),
-        (power_main, [str(tmp_path / "other.json")], "error: reports: ",
-         "is not a diagnosis's report.json (report lacks 'name')"),
-        (power_main, [str(tmp_path / "bad.json"), "--draws", "0,2"], "error: --draws must be",
-         "got '0,2'"),
-        (preview_main, [str(tmp_path / "empty"), "--out", str(tmp_path / "p")],
-         "error: datasets: ", "manifest.json not found"),
-        (preview_main, [str(tmp_path / "none"), "--out", str(tmp_path / "p")],
-         "error: datasets: ", "is not a folder"),
-        (validate_main, ["--sets", "0", "--run", str(tmp_path)], "error: --sets must be",
-         "got 0"),
-    ]  # fmt: skip
+        (
+            power_main,
+            [str(tmp_path / "other.json")],
+            "error: reports: ",
+            "is not a diagnosis's report.json (report lacks 'name')",
+        ),
+        (
+            power_main,
+            [str(tmp_path / "bad.json"), "--draws", "0,2"],
+            "error: --draws must be",
+            "got '0,2'",
+        ),
+        (
+            preview_main,
+            [str(tmp_path / "empty"), "--out", str(tmp_path / "p")],
+            "error: datasets: ",
+            "manifest.json not found",
+        ),
+        (
+            preview_main,
+            [str(tmp_path / "none"), "--out", str(tmp_path / "p")],
+            "error: datasets: ",
+            "is not a folder",
+        ),
+        (validate_main, ["--sets", "0", "--run", str(tmp_path)], "error: --sets must be", "got 0"),
+    ]
     for main, argv, start, words in cases:
         with pytest.raises(SystemExit) as info:
             main(argv)
@@ -181,14 +223,18 @@ def test_power_preview_and_validate_refuse_bad_input_in_one_line(tmp_path, capsy
         ("diagnose", ["real_dir={tmp}", "run={tmp}", "cache_dir={file}"], "cache_dir"),
         ("diagnose", ["real_dir={tmp}", "run={tmp}", "out_dir={file}/o"], "out_dir"),
     ],
-)  # fmt: skip
+)
 def test_every_destination_is_checked_before_the_work(config, overrides, field, tmp_path):
     import apps.demo as demo_entry
     import benchmarks.thesis.tissue_jobs as tissue_entry
     import datasets.generate as generate_entry
 
-    run = {"generate": generate_entry.run, "demo": demo_entry.run, "tissue": tissue_entry.run,
-           "diagnose": diagnose_entry.run}[config]  # fmt: skip
+    run = {
+        "generate": generate_entry.run,
+        "demo": demo_entry.run,
+        "tissue": tissue_entry.run,
+        "diagnose": diagnose_entry.run,
+    }[config]
     (tmp_path / "file").write_text("x")
     given = [o.format(file=tmp_path / "file", tmp=tmp_path) for o in overrides]
     cfg = _compose(config, *given, "paths.output_dir=/tmp/unused")
@@ -206,9 +252,16 @@ def test_demo_refuses_a_recording_longer_than_memory_allows(tmp_path):
 
 
 def test_ctrl_c_inside_the_compiled_solver_ends_simulate_in_one_line(tmp_path):
-    proc = _start(["-m", "simulator.cloth.simulate", "record_time=60",
-                   f"out_file={tmp_path}/s.npz", f"paths.log_dir={tmp_path}/logs"],
-                  tmp_path)  # fmt: skip
+    proc = _start(
+        [
+            "-m",
+            "simulator.cloth.simulate",
+            "record_time=60",
+            f"out_file={tmp_path}/s.npz",
+            f"paths.log_dir={tmp_path}/logs",
+        ],
+        tmp_path,
+    )
     seen = ""
     while "step/s" not in seen and proc.poll() is None:  # simulating, past the compilation
         seen += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")

@@ -70,8 +70,16 @@ def test_no_package_imports_the_train_script():
     import re
 
     pattern = re.compile(r"^\s*(?:import train\b|from train import)", re.M)
-    packages = ("common", "simulator", "render", "datasets", "models", "apps", "sim2real",
-                "benchmarks")  # fmt: skip
+    packages = (
+        "common",
+        "simulator",
+        "render",
+        "datasets",
+        "models",
+        "apps",
+        "sim2real",
+        "benchmarks",
+    )
     offenders = [
         str(path.relative_to(ROOT))
         for package in packages

@@ -51,9 +51,14 @@ MIN_IMAGE_SIDE = 64
 MIN_PERSON_HEIGHT = 100
 """Smallest person height in the image [px] the body fit can work with."""
 OUTPUTS = (
-    "pattern.svg", "pattern.json", "overlay.png", "side_by_side.png", "objective.png",
-    "result.json", "timings.json",
-)  # fmt: skip
+    "pattern.svg",
+    "pattern.json",
+    "overlay.png",
+    "side_by_side.png",
+    "objective.png",
+    "result.json",
+    "timings.json",
+)
 
 
 def read_image(path_text, field: str) -> np.ndarray:
@@ -127,14 +132,25 @@ def _checked(cfg: DictConfig) -> dict:
     from render.camera import CameraSpec
 
     camera = CameraSpec(
-        position=(0.0, -distance, height), look_at=(0.0, 0.0, look), up=(0.0, 0.0, 1.0),
-        yfov_deg=yfov, width=image.shape[1], height=image.shape[0],
-    )  # fmt: skip
+        position=(0.0, -distance, height),
+        look_at=(0.0, 0.0, look),
+        up=(0.0, 0.0, 1.0),
+        yfov_deg=yfov,
+        width=image.shape[1],
+        height=image.shape[0],
+    )
     out_dir = Path(str(cfg.out_dir))
     return {
-        "threads": threads, "garment": garment, "settings": settings, "image": image,
-        "mask": mask, "person": person, "camera": camera, "export": export, "out_dir": out_dir,
-    }  # fmt: skip
+        "threads": threads,
+        "garment": garment,
+        "settings": settings,
+        "image": image,
+        "mask": mask,
+        "person": person,
+        "camera": camera,
+        "export": export,
+        "out_dir": out_dir,
+    }
 
 
 def check_person(person: np.ndarray) -> None:
@@ -161,8 +177,12 @@ def run(cfg: DictConfig) -> RecoveryResult:
 
     from tqdm import tqdm
 
-    bar = tqdm(total=settings.body_iters + settings.planned_iterations(), unit="it",
-               desc="body", smoothing=0.05)  # fmt: skip
+    bar = tqdm(
+        total=settings.body_iters + settings.planned_iterations(),
+        unit="it",
+        desc="body",
+        smoothing=0.05,
+    )
 
     def progress(stage: str) -> None:
         bar.set_description(stage, refresh=False)
@@ -170,9 +190,14 @@ def run(cfg: DictConfig) -> RecoveryResult:
 
     try:
         result = recover_garment(
-            image, fields["garment"], fields["camera"], settings, mask=fields["mask"],
-            person=person, progress=progress,
-        )  # fmt: skip
+            image,
+            fields["garment"],
+            fields["camera"],
+            settings,
+            mask=fields["mask"],
+            person=person,
+            progress=progress,
+        )
     finally:
         bar.close()
     paths = write_outputs(result, image, fields["camera"], fields["out_dir"], fields["export"])
@@ -192,18 +217,26 @@ def result_json(result: RecoveryResult) -> dict:
         },
         "material": {"basis": "gray-interlock", **result.material},
         "pose_deg": result.pose.to_dict(),
-        "body": {"height": result.body.shape.height, "offset": result.body.offset.tolist(),
-                 "fit_loss": result.body.loss},
+        "body": {
+            "height": result.body.shape.height,
+            "offset": result.body.offset.tolist(),
+            "fit_loss": result.body.loss,
+        },
         "regions": list(REGIONS[result.garment.value]),
         "curvature": result.curvature.tolist(),
         "curvature_target": result.curvature_target.tolist(),
         "wrinkle_density": result.density.tolist(),
-        "wrinkle_map": {"a": result.wrinkle_map[0], "b": result.wrinkle_map[1],
-                        "form": "K = a + b P (K [1/m], P [1/m])"},
-        "light": {"direction": result.light.direction.tolist(),
-                  "ambient_ratio": result.light.ambient_ratio},
+        "wrinkle_map": {
+            "a": result.wrinkle_map[0],
+            "b": result.wrinkle_map[1],
+            "form": "K = a + b P (K [1/m], P [1/m])",
+        },
+        "light": {
+            "direction": result.light.direction.tolist(),
+            "ambient_ratio": result.light.ambient_ratio,
+        },
         "history": result.history,
-    }  # fmt: skip
+    }
 
 
 def _render_result(result: RecoveryResult, camera, *, garment_only: bool = False):
@@ -214,9 +247,12 @@ def _render_result(result: RecoveryResult, camera, *, garment_only: bool = False
         caps = caps[:0]
     color = GARMENT_COLORS[result.garment.value]
     return render_scene(
-        camera, result.light.light_spec(), caps,
-        [(result.pos, result.pattern.topology.tri_indices, color)], masks=False,
-    )  # fmt: skip
+        camera,
+        result.light.light_spec(),
+        caps,
+        [(result.pos, result.pattern.topology.tri_indices, color)],
+        masks=False,
+    )
 
 
 def overlay_image(result: RecoveryResult, image: np.ndarray, camera) -> np.ndarray:
@@ -248,8 +284,13 @@ def objective_figure(history: list[dict], path: Path) -> None:
     for key in sorted({(h["stage"], h["round"]) for h in history}):
         pts = [h for h in history if (h["stage"], h["round"]) == key]
         ax = axes[groups[key[0]]]
-        ax.plot([p["step"] for p in pts], [p["objective"] for p in pts], "o-", ms=3,
-                label=f"{key[0]} round {key[1]}")  # fmt: skip
+        ax.plot(
+            [p["step"] for p in pts],
+            [p["objective"] for p in pts],
+            "o-",
+            ms=3,
+            label=f"{key[0]} round {key[1]}",
+        )
     for ax, title in zip(axes, titles, strict=True):
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("swarm iteration")
@@ -283,8 +324,10 @@ def write_outputs(
         )
         render, _, _ = _render_result(result, camera)
         side = np.concatenate([image, np.full((image.shape[0], 8, 3), 255, np.uint8), render], 1)
-        for name, picture in (("overlay.png", overlay_image(result, image, camera)),
-                              ("side_by_side.png", side)):  # fmt: skip
+        for name, picture in (
+            ("overlay.png", overlay_image(result, image, camera)),
+            ("side_by_side.png", side),
+        ):
             _, data = cv2.imencode(".png", cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
             atomic_write_bytes(staging / name, data.tobytes())
         objective_figure(result.history, staging / "objective.png")

@@ -87,14 +87,21 @@ __all__ = [
 ]
 
 BODY_SEARCH: tuple[tuple[str, int, float, float], ...] = (
-    ("shoulder_r", 1, -95.0, 5.0), ("shoulder_r", 2, -25.0, 25.0),
-    ("shoulder_l", 1, -5.0, 95.0), ("shoulder_l", 2, -25.0, 25.0),
-    ("elbow_r", 1, -70.0, 10.0), ("elbow_r", 2, -25.0, 25.0),
-    ("elbow_l", 1, -10.0, 70.0), ("elbow_l", 2, -25.0, 25.0),
-    ("hip_r", 0, -30.0, 20.0), ("hip_r", 1, -8.0, 20.0),
-    ("hip_l", 0, -30.0, 20.0), ("hip_l", 1, -20.0, 8.0),
-    ("knee_r", 0, 0.0, 40.0), ("knee_l", 0, 0.0, 40.0),
-)  # fmt: skip
+    ("shoulder_r", 1, -95.0, 5.0),
+    ("shoulder_r", 2, -25.0, 25.0),
+    ("shoulder_l", 1, -5.0, 95.0),
+    ("shoulder_l", 2, -25.0, 25.0),
+    ("elbow_r", 1, -70.0, 10.0),
+    ("elbow_r", 2, -25.0, 25.0),
+    ("elbow_l", 1, -10.0, 70.0),
+    ("elbow_l", 2, -25.0, 25.0),
+    ("hip_r", 0, -30.0, 20.0),
+    ("hip_r", 1, -8.0, 20.0),
+    ("hip_l", 0, -30.0, 20.0),
+    ("hip_l", 1, -20.0, 8.0),
+    ("knee_r", 0, 0.0, 40.0),
+    ("knee_l", 0, 0.0, 40.0),
+)
 """Joint angles the body fit searches: (joint, axis, low, high) [deg]; the others stay 0."""
 
 OUTER_GARMENTS = frozenset({"tshirt"})
@@ -145,8 +152,16 @@ class RecoverySettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:
                 raise InputError(f"recovery.{name} must be an integer >= 2, got {value!r}")
-        for name in ("rounds", "sizing_iters", "material_iters", "pose_iters", "body_iters",
-                     "drape_steps", "first_drape_steps", "joint_rounds"):  # fmt: skip
+        for name in (
+            "rounds",
+            "sizing_iters",
+            "material_iters",
+            "pose_iters",
+            "body_iters",
+            "drape_steps",
+            "first_drape_steps",
+            "joint_rounds",
+        ):
             value = getattr(self, name)
             low = 0 if name == "joint_rounds" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -237,10 +252,14 @@ def fit_body(
     shape_hw = person.shape
     area = max(np.count_nonzero(person), 1)
     out_of_plane = np.array(
-        [1.0 / 30.0 if (j.startswith(("shoulder", "elbow")) and a == 2)
-         or (j.startswith(("hip", "knee")) and a == 0) else 0.0
-         for j, a, _, _ in BODY_SEARCH]
-    )  # fmt: skip
+        [
+            1.0 / 30.0
+            if (j.startswith(("shoulder", "elbow")) and a == 2)
+            or (j.startswith(("hip", "knee")) and a == 0)
+            else 0.0
+            for j, a, _, _ in BODY_SEARCH
+        ]
+    )
     # Distances [px] to the person: body pixels outside it cost by how far out they are, so a
     # thin limb off its place has a basin to roll into, not a plateau.
     outside_person = cv2.distanceTransform((~person).astype(np.uint8), cv2.DIST_L2, 3)
@@ -289,8 +308,12 @@ def fit_body(
     best_x, best_f = swarm.best_x, float(swarm.best_f)
     groups = [[0, 1, 2]]
     for prefix in ("shoulder_r", "shoulder_l", "hip_r", "hip_l"):
-        limb = {"shoulder_r": ("shoulder_r", "elbow_r"), "shoulder_l": ("shoulder_l", "elbow_l"),
-                "hip_r": ("hip_r", "knee_r"), "hip_l": ("hip_l", "knee_l")}[prefix]  # fmt: skip
+        limb = {
+            "shoulder_r": ("shoulder_r", "elbow_r"),
+            "shoulder_l": ("shoulder_l", "elbow_l"),
+            "hip_r": ("hip_r", "knee_r"),
+            "hip_l": ("hip_l", "knee_l"),
+        }[prefix]
         groups.append([3 + k for k, b in enumerate(BODY_SEARCH) if b[0] in limb])
     per_group = max((settings.body_iters - glob) // (2 * len(groups)), 1)
     for sweep in range(2):
@@ -302,8 +325,9 @@ def fit_body(
                 xs[:, dims] = ys
                 return loss(xs)
 
-            sub = _swarm(sub_lo, sub_hi, 16, settings.seed + 17 * sweep + g, best_x[dims],
-                         spread=0.08)  # fmt: skip
+            sub = _swarm(
+                sub_lo, sub_hi, 16, settings.seed + 17 * sweep + g, best_x[dims], spread=0.08
+            )
             for _ in range(per_group):
                 sub.tell(sub_loss(sub.ask()))
             if sub.best_f < best_f:
@@ -337,9 +361,11 @@ class LightEstimate:
 
         ambient = intensity * 0.96 / math.pi * self.ambient_ratio
         return LightSpec(
-            direction=tuple(self.direction), frame=LightFrame.WORLD, intensity=intensity,
+            direction=tuple(self.direction),
+            frame=LightFrame.WORLD,
+            intensity=intensity,
             ambient_intensity=float(min(max(ambient, 0.0), 10.0)),
-        )  # fmt: skip
+        )
 
 
 def _ray_capsule_normals(camera, pixels: np.ndarray, caps: np.ndarray) -> np.ndarray:
@@ -373,8 +399,9 @@ def _ray_capsule_normals(camera, pixels: np.ndarray, caps: np.ndarray) -> np.nda
             qb = d_perp @ oc_perp
             qc = oc_perp @ oc_perp - r * r
             disc = qb * qb - qa * qc
-            t = np.where(disc >= 0, (-qb - np.sqrt(np.maximum(disc, 0))) / np.maximum(qa, 1e-12),
-                         np.inf)  # fmt: skip
+            t = np.where(
+                disc >= 0, (-qb - np.sqrt(np.maximum(disc, 0))) / np.maximum(qa, 1e-12), np.inf
+            )
             s = (oc @ a) + t * (d @ a)
             t = np.where((s >= 0) & (s <= length), t, np.inf)
             cands.append((t, a, p0))
@@ -456,9 +483,10 @@ def expected_mask(body: BodyFit, garment: str, camera, shape_hw) -> np.ndarray:
     mann = body.mannequin()
     caps = mann.capsules(body.pose.angles[None])[0]
     keep = [
-        c for c, p in enumerate(mann.primitives)
+        c
+        for c, p in enumerate(mann.primitives)
         if any(p.name == q or p.name.startswith(q + "_") for q in GARMENT_PRIMITIVES[garment])
-    ]  # fmt: skip
+    ]
     return capsule_mask(camera, caps[keep], shape_hw)
 
 
@@ -532,8 +560,17 @@ class RecoveryResult:
 class _Evaluator:
     """Batched drapes and the objectives of one garment recovery."""
 
-    def __init__(self, topology, target: GarmentTarget, body: BodyFit, camera, light,
-                 settings: RecoverySettings, timings: dict, should_stop):  # fmt: skip
+    def __init__(
+        self,
+        topology,
+        target: GarmentTarget,
+        body: BodyFit,
+        camera,
+        light,
+        settings: RecoverySettings,
+        timings: dict,
+        should_stop,
+    ):
         self.topology = topology
         self.target = target
         self.body = body
@@ -548,9 +585,11 @@ class _Evaluator:
         self.pairs: list[tuple[np.ndarray, np.ndarray]] = []  # (P, K) of rendered drapes
         self._renderer = None
         self.image_regions = region_map(
-            camera, self.mannequin.capsules(body.pose.angles[None])[0], self.regions,
+            camera,
+            self.mannequin.capsules(body.pose.angles[None])[0],
+            self.regions,
             target.mask,
-        )  # fmt: skip
+        )
 
     def close(self):
         if self._renderer is not None:
@@ -565,9 +604,13 @@ class _Evaluator:
             max_steps=steps, speed_tol=self.settings.drape_speed_tol, capsule_margin=0.12
         )
         batch = GarmentBatch.build(
-            self.topology, coords, garment_material(bend, stretch), caps, settings,
+            self.topology,
+            coords,
+            garment_material(bend, stretch),
+            caps,
+            settings,
             pos_hint=start,
-        )  # fmt: skip
+        )
         result = drape(batch, start, settings, should_stop=self.should_stop)
         self.timings["simulation"] += time.perf_counter() - t
         return result.pos.numpy(), caps, result
@@ -608,14 +651,19 @@ class _Evaluator:
         color = GARMENT_COLORS[self.target.garment.value]
         for b, (p, c) in enumerate(zip(pos, caps, strict=True)):
             img, _, _ = render_scene(
-                self.camera, None, c, [(p, self.topology.tri_indices, color)], masks=False,
+                self.camera,
+                None,
+                c,
+                [(p, self.topology.tri_indices, color)],
+                masks=False,
                 renderer=self._renderer,
-            )  # fmt: skip
+            )
             px, _ = self.camera.project(p)
             mask = mesh_mask(px, self.topology.tri_indices, shape) & ~self.target.dont_care
             regions = region_map(self.camera, c, self.regions, mask)
-            out[b], _ = wrinkle_density(img, mask, regions, self.region_count,
-                                        pixel_size(self.camera))  # fmt: skip
+            out[b], _ = wrinkle_density(
+                img, mask, regions, self.region_count, pixel_size(self.camera)
+            )
         self.timings["rendering"] += time.perf_counter() - t
         return out
 
@@ -728,8 +776,9 @@ def recover_garment(
     timings["parsing"] += time.perf_counter() - tick
     tick = time.perf_counter()
     if body_fit is None:
-        body_fit = fit_body(person, skin, camera, settings,
-                            on_iteration=lambda: progress and progress("body"))  # fmt: skip
+        body_fit = fit_body(
+            person, skin, camera, settings, on_iteration=lambda: progress and progress("body")
+        )
     light = estimate_light(image, skin, body_fit, camera)
     timings["body"] += time.perf_counter() - tick
     tick = time.perf_counter()
@@ -750,13 +799,21 @@ def recover_garment(
         tick = time.perf_counter()
         start = register_batch(topology, coords0[None], [g_best], ev.mannequin, angles[None])
         timings["simulation"] += time.perf_counter() - tick
-        pos, caps, _ = ev.drape(coords0[None], [c_best["bend"]], [c_best["stretch"]],
-                                angles[None], start, settings.first_drape_steps)  # fmt: skip
+        pos, caps, _ = ev.drape(
+            coords0[None],
+            [c_best["bend"]],
+            [c_best["stretch"]],
+            angles[None],
+            start,
+            settings.first_drape_steps,
+        )
         x_best = pos[0]
         sil = ev.silhouette(pos)[0]
         cur_obj, k_best = ev.curvature_objective(pos, caps)
-        f_best = {"material": float(cur_obj[0] + settings.silhouette_weight * sil),
-                  "sizing": float(sil)}  # fmt: skip
+        f_best = {
+            "material": float(cur_obj[0] + settings.silhouette_weight * sil),
+            "sizing": float(sil),
+        }
 
         _, lo_g, hi_g = search_box(garment)
         lo_c = np.log10([p.low for p in MATERIAL_SPECS])
@@ -764,8 +821,13 @@ def recover_garment(
 
         def material_round(stage: str, rnd: int):
             nonlocal c_best, x_best, f_best, k_best
-            swarm = _swarm(lo_c, hi_c, s, rng_seed + 1000 * rnd + 1,
-                           np.log10([c_best["bend"], c_best["stretch"]]))  # fmt: skip
+            swarm = _swarm(
+                lo_c,
+                hi_c,
+                s,
+                rng_seed + 1000 * rnd + 1,
+                np.log10([c_best["bend"], c_best["stretch"]]),
+            )
             coords = np.repeat(topology.coords(g_best)[None], s, 0)
             for it in range(settings.material_iters):
                 xs = swarm.ask()
@@ -790,8 +852,9 @@ def recover_garment(
                     c_best = {"bend": float(bend[i]), "stretch": float(stretch[i])}
                     x_best, k_best, f_best["material"] = pos[i], k[i], float(f[i])
                     f_best["sizing"] = float(sil[i])
-                history.append({"stage": stage, "round": rnd, "iteration": it,
-                                "objective": f_best["material"]})  # fmt: skip
+                history.append(
+                    {"stage": stage, "round": rnd, "iteration": it, "objective": f_best["material"]}
+                )
                 timings["bookkeeping"] += time.perf_counter() - t
                 if progress:
                     progress(stage)
@@ -804,18 +867,27 @@ def recover_garment(
                 params = [from_search(garment, x) for x in xs]
                 coords = np.stack([topology.coords(p) for p in params])
                 pos, _, res = ev.drape(
-                    coords, [c_best["bend"]] * s, [c_best["stretch"]] * s,
-                    np.repeat(angles[None], s, 0), np.repeat(x_best[None], s, 0),
+                    coords,
+                    [c_best["bend"]] * s,
+                    [c_best["stretch"]] * s,
+                    np.repeat(angles[None], s, 0),
+                    np.repeat(x_best[None], s, 0),
                     settings.drape_steps,
-                )  # fmt: skip
+                )
                 t = time.perf_counter()
                 f = np.where(res.failed, np.inf, ev.silhouette(pos))
                 swarm.tell(f)
                 i = int(np.argmin(f))
                 if f[i] <= f_best["sizing"]:
                     g_best, x_best, f_best["sizing"] = params[i], pos[i], float(f[i])
-                history.append({"stage": "sizing", "round": rnd, "iteration": it,
-                                "objective": f_best["sizing"]})  # fmt: skip
+                history.append(
+                    {
+                        "stage": "sizing",
+                        "round": rnd,
+                        "iteration": it,
+                        "objective": f_best["sizing"],
+                    }
+                )
                 timings["bookkeeping"] += time.perf_counter() - t
                 if progress:
                     progress("sizing")
@@ -843,21 +915,28 @@ def recover_garment(
                 for k, (j, a) in enumerate(keys):
                     cand[:, j, a] += xs[:, k]
                 start = _repose(x_best, ev.mannequin, angles, cand)
-                pos, caps, res = ev.drape(coords, [c_best["bend"]] * s, [c_best["stretch"]] * s,
-                                          cand, start, settings.drape_steps)  # fmt: skip
+                pos, caps, res = ev.drape(
+                    coords,
+                    [c_best["bend"]] * s,
+                    [c_best["stretch"]] * s,
+                    cand,
+                    start,
+                    settings.drape_steps,
+                )
                 t = time.perf_counter()
                 obj, k = ev.curvature_objective(pos, caps)
-                body_term = np.array([
-                    body_sil.distance(capsule_mask(camera, c, target.mask.shape)) for c in caps
-                ])  # fmt: skip
+                body_term = np.array(
+                    [body_sil.distance(capsule_mask(camera, c, target.mask.shape)) for c in caps]
+                )
                 f = np.where(res.failed, np.inf, obj + settings.silhouette_weight * body_term)
                 swarm.tell(f)
                 i = int(np.argmin(f))
                 if f[i] < f_pose:
                     f_pose = float(f[i])
                     angles, x_best, k_best = cand[i].copy(), pos[i], k[i]
-                history.append({"stage": "pose", "round": rnd, "iteration": it,
-                                "objective": f_pose})  # fmt: skip
+                history.append(
+                    {"stage": "pose", "round": rnd, "iteration": it, "objective": f_pose}
+                )
                 timings["bookkeeping"] += time.perf_counter() - t
                 if progress:
                     progress("pose")
@@ -869,11 +948,20 @@ def recover_garment(
     pattern = Pattern(topology, check_params(garment, g_best), topology.coords(g_best))
     a, b = ev.wrinkle_map()
     return RecoveryResult(
-        garment=garment, pattern=pattern, material=c_best, body=body_fit, pose=Pose(angles),
-        pos=x_best, curvature=np.asarray(k_best), curvature_target=ev.curvature_target(),
-        wrinkle_map=(a, b), density=target.density, light=light, history=history,
+        garment=garment,
+        pattern=pattern,
+        material=c_best,
+        body=body_fit,
+        pose=Pose(angles),
+        pos=x_best,
+        curvature=np.asarray(k_best),
+        curvature_target=ev.curvature_target(),
+        wrinkle_map=(a, b),
+        density=target.density,
+        light=light,
+        history=history,
         timings=timings,
-    )  # fmt: skip
+    )
 
 
 def _repose(pos: np.ndarray, body: Mannequin, angles: np.ndarray, targets: np.ndarray):

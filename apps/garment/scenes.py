@@ -107,14 +107,22 @@ def scene_light(name: str):
 
     if name == "midday":
         return LightSpec(
-            direction=(0.25, 0.55, -0.8), frame=LightFrame.WORLD, intensity=3.2,
-            color=(1.0, 0.98, 0.95), ambient_intensity=0.35, ambient_color=(0.9, 0.95, 1.0),
-        )  # fmt: skip
+            direction=(0.25, 0.55, -0.8),
+            frame=LightFrame.WORLD,
+            intensity=3.2,
+            color=(1.0, 0.98, 0.95),
+            ambient_intensity=0.35,
+            ambient_color=(0.9, 0.95, 1.0),
+        )
     if name == "sunset":
         return LightSpec(
-            direction=(-0.85, 0.45, -0.28), frame=LightFrame.WORLD, intensity=2.6,
-            color=(1.0, 0.68, 0.42), ambient_intensity=0.28, ambient_color=(0.75, 0.7, 0.85),
-        )  # fmt: skip
+            direction=(-0.85, 0.45, -0.28),
+            frame=LightFrame.WORLD,
+            intensity=2.6,
+            color=(1.0, 0.68, 0.42),
+            ambient_intensity=0.28,
+            ambient_color=(0.75, 0.7, 0.85),
+        )
     raise ValueError(f"lighting must be one of {', '.join(LIGHTINGS)}; got {name!r}")
 
 
@@ -182,9 +190,15 @@ def render_scene(
 
         def draw(cols):
             return renderer.render_clip(
-                all_pos[None], all_tri, all_uv, _texture(cols), bg,
-                capsules=drawn[None], rng=rng, coverage=True,
-            )  # fmt: skip
+                all_pos[None],
+                all_tri,
+                all_uv,
+                _texture(cols),
+                bg,
+                capsules=drawn[None],
+                rng=rng,
+                coverage=True,
+            )
 
         frames, alpha = draw(colors)
         image = frames[0]
@@ -206,20 +220,35 @@ def render_scene(
 # ---------------------------------------------------------------------------------- scenes
 
 POSES: dict[str, Pose] = {
-    "a": Pose.from_dict({
-        "shoulder_r": [0, -68, 0], "shoulder_l": [0, 68, 0],
-        "elbow_r": [0, -12, 6], "elbow_l": [0, 12, -6],
-    }),
-    "b": Pose.from_dict({
-        "shoulder_r": [0, -70, 0], "shoulder_l": [0, 70, 0],
-        "elbow_r": [0, -10, 0], "elbow_l": [0, 10, 0],
-        "hip_r": [-12, 9, 0], "hip_l": [8, -9, 0], "knee_r": [18, 0, 0], "knee_l": [6, 0, 0],
-    }),
-    "c": Pose.from_dict({
-        "shoulder_r": [0, -45, 8], "shoulder_l": [0, 40, -8],
-        "elbow_r": [0, -40, 0], "elbow_l": [0, 35, 0],
-    }),
-}  # fmt: skip
+    "a": Pose.from_dict(
+        {
+            "shoulder_r": [0, -68, 0],
+            "shoulder_l": [0, 68, 0],
+            "elbow_r": [0, -12, 6],
+            "elbow_l": [0, 12, -6],
+        }
+    ),
+    "b": Pose.from_dict(
+        {
+            "shoulder_r": [0, -70, 0],
+            "shoulder_l": [0, 70, 0],
+            "elbow_r": [0, -10, 0],
+            "elbow_l": [0, 10, 0],
+            "hip_r": [-12, 9, 0],
+            "hip_l": [8, -9, 0],
+            "knee_r": [18, 0, 0],
+            "knee_l": [6, 0, 0],
+        }
+    ),
+    "c": Pose.from_dict(
+        {
+            "shoulder_r": [0, -45, 8],
+            "shoulder_l": [0, 40, -8],
+            "elbow_r": [0, -40, 0],
+            "elbow_l": [0, 35, 0],
+        }
+    ),
+}
 """The three evaluation poses (*thesis* Fig. 6.11 a-c; joint angles in degrees)."""
 
 
@@ -250,13 +279,15 @@ class SceneSpec:
 
 
 _TSHIRT = SceneGarment(
-    "tshirt", {"r": 0.09, "w1": 0.16, "w2": 0.50, "h1": 0.33, "h2": 0.64, "l1": 0.22},
+    "tshirt",
+    {"r": 0.09, "w1": 0.16, "w2": 0.50, "h1": 0.33, "h2": 0.64, "l1": 0.22},
     {"bend": 8.0, "stretch": 1.5},
-)  # fmt: skip
+)
 _PANTS = SceneGarment(
-    "pants", {"w1": 0.78, "w2": 1.06, "w3": 0.44, "w4": 0.38, "h1": 0.95, "h2": 0.34, "h3": 0.27},
+    "pants",
+    {"w1": 0.78, "w2": 1.06, "w3": 0.44, "w4": 0.38, "h1": 0.95, "h2": 0.34, "h3": 0.27},
     {"bend": 40.0, "stretch": 3.0},
-)  # fmt: skip
+)
 _SKIRT_G = {"l1": 0.37, "r1": 0.75, "r2": 0.42, "alpha": 0.78}
 _SKIRT_POSE = "a"
 
@@ -267,12 +298,16 @@ SCENES: tuple[SceneSpec, ...] = (
         for light in LIGHTINGS
     ),
     *(
-        SceneSpec(f"skirt_{kind}_{light}", _SKIRT_POSE, light,
-                  (SceneGarment("skirt", _SKIRT_G, {"bend": bend, "stretch": stretch}),))
+        SceneSpec(
+            f"skirt_{kind}_{light}",
+            _SKIRT_POSE,
+            light,
+            (SceneGarment("skirt", _SKIRT_G, {"bend": bend, "stretch": stretch}),),
+        )
         for kind, bend, stretch in (("low", 3.0, 1.0), ("high", 60.0, 2.0))
         for light in LIGHTINGS
     ),
-)  # fmt: skip
+)
 """The ten evaluation scenes of *thesis* Tables 6.1-6.3."""
 
 LAYER_ORDER = ("pants", "skirt", "tshirt")
@@ -310,8 +345,7 @@ def drape_scene(
             if any(prim.name.startswith(p) for p in covered):
                 obstacle[:, c, 6] += LAYER_INFLATE
         mat = garment_material([sg.material["bend"]], [sg.material["stretch"]])
-        batch = GarmentBatch.build(topo, pattern.coords[None], mat, obstacle, settings,
-                                   pos_hint=x0)  # fmt: skip
+        batch = GarmentBatch.build(topo, pattern.coords[None], mat, obstacle, settings, pos_hint=x0)
         out[sg.garment] = (pattern, drape(batch, x0, settings))
         if sg.garment == "pants":
             covered |= {"torso", "thigh", "lower_thigh"}

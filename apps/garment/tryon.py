@@ -50,9 +50,16 @@ from simulator.model import SimState
 from simulator.sequence import MeshSequence
 
 __all__ = [
-    "CLONE_LEVELS", "GIRTH_PARAMS", "TryOn", "animate", "clone_skirt", "load_pattern_json",
-    "resize_params", "try_on", "wind",
-]  # fmt: skip
+    "CLONE_LEVELS",
+    "GIRTH_PARAMS",
+    "TryOn",
+    "animate",
+    "clone_skirt",
+    "load_pattern_json",
+    "resize_params",
+    "try_on",
+    "wind",
+]
 
 GIRTH_PARAMS: dict[str, dict[str, str]] = {
     "skirt": {"l1": "waist", "r1": "hip"},
@@ -133,11 +140,13 @@ def try_on(
     angles = pose.angles[None]
     x0 = register_batch(topology, pattern.coords[None], [pattern.params], body, angles)
     mat = garment_material([material["bend"]], [material["stretch"]])
-    batch = GarmentBatch.build(topology, pattern.coords[None], mat, body.capsules(angles),
-                               settings, pos_hint=x0)  # fmt: skip
+    batch = GarmentBatch.build(
+        topology, pattern.coords[None], mat, body.capsules(angles), settings, pos_hint=x0
+    )
     result = drape(batch, x0, settings)
-    return TryOn(pattern, dict(material), body, pose, result.pos[0].numpy(),
-                 bool(result.converged[0]))  # fmt: skip
+    return TryOn(
+        pattern, dict(material), body, pose, result.pos[0].numpy(), bool(result.converged[0])
+    )
 
 
 def animate(
@@ -219,9 +228,16 @@ def wind(dressed: TryOn, *, seed: int = 0, fps: float = 25.0, **kwargs) -> MeshS
     topology = dressed.pattern.topology
     mat = garment_material([dressed.material["bend"]], [dressed.material["stretch"]])
     frames = animate(
-        topology, dressed.pattern.coords[None], mat, dressed.body, dressed.pose,
-        dressed.pos[None], seed=seed, fps=fps, **kwargs,
-    )  # fmt: skip
+        topology,
+        dressed.pattern.coords[None],
+        mat,
+        dressed.body,
+        dressed.pose,
+        dressed.pos[None],
+        seed=seed,
+        fps=fps,
+        **kwargs,
+    )
     caps = dressed.body.capsules(dressed.pose.angles[None]).astype(np.float32)
     return MeshSequence(
         pos=frames,
@@ -231,11 +247,15 @@ def wind(dressed: TryOn, *, seed: int = 0, fps: float = 25.0, **kwargs) -> MeshS
         seeds=[seed],
         labels=[-1],
         wind_levels=[0],
-        meta={"scene": "garment_wind", "garment": dressed.pattern.garment.value,
-              "params": dressed.pattern.params, "material": dressed.material,
-              "wind": {k: v for k, v in kwargs.items() if k != "on_frame"}},
+        meta={
+            "scene": "garment_wind",
+            "garment": dressed.pattern.garment.value,
+            "params": dressed.pattern.params,
+            "material": dressed.material,
+            "wind": {k: v for k, v in kwargs.items() if k != "on_frame"},
+        },
         capsules=np.repeat(caps[:, None], frames.shape[1], axis=1),
-    )  # fmt: skip
+    )
 
 
 CLONE_LEVELS = {1: 0.08, 2: 0.06, 3: 0.045}
@@ -278,14 +298,31 @@ def clone_skirt(
     x0 = register_batch(topology, coords[:1], [pattern.params], body, angles[:1])
     x0 = np.repeat(x0, batch_size, 0)
     settings = DrapeSettings(max_steps=150)
-    batch = GarmentBatch.build(topology, coords, material, body.capsules(angles), settings,
-                               pos_hint=x0)  # fmt: skip
+    batch = GarmentBatch.build(
+        topology, coords, material, body.capsules(angles), settings, pos_hint=x0
+    )
     rest = drape(batch, x0, settings).pos.numpy()
-    frames = animate(topology, coords, material, body, pose, rest, speed=speed, seconds=seconds,
-                     fps=fps, seed=seed, on_frame=on_frame)  # fmt: skip
+    frames = animate(
+        topology,
+        coords,
+        material,
+        body,
+        pose,
+        rest,
+        speed=speed,
+        seconds=seconds,
+        fps=fps,
+        seed=seed,
+        on_frame=on_frame,
+    )
     waist = body.levels["waist"]
-    camera = CameraSpec(position=(0.35, -2.3, waist - 0.1), look_at=(0.0, 0.0, waist - 0.3),
-                        yfov_deg=30.0, width=size, height=size)  # fmt: skip
+    camera = CameraSpec(
+        position=(0.35, -2.3, waist - 0.1),
+        look_at=(0.0, 0.0, waist - 0.3),
+        yfov_deg=30.0,
+        width=size,
+        height=size,
+    )
     caps = body.capsules(pose.angles[None])[0]
     from render.renderer import ClothRenderer
 
@@ -294,19 +331,31 @@ def clone_skirt(
         for b in range(batch_size):
             for k in range(frames.shape[1]):
                 images[b, k], _, _ = render_scene(
-                    camera, None, caps, [(frames[b, k], topology.tri_indices,
-                                          GARMENT_COLORS["skirt"])],
-                    masks=False, renderer=renderer,
-                )  # fmt: skip
+                    camera,
+                    None,
+                    caps,
+                    [(frames[b, k], topology.tri_indices, GARMENT_COLORS["skirt"])],
+                    masks=False,
+                    renderer=renderer,
+                )
     sequence = MeshSequence(
-        pos=frames, tri_indices=topology.tri_indices,
-        uv=pattern.atlas_uv().astype(np.float32), fps=float(fps),
-        seeds=[seed] * batch_size, labels=[-1] * batch_size, wind_levels=[0] * batch_size,
-        meta={"scene": "garment_skirt", "params": pattern.params, "wind_speed": speed,
-              "level": level},
+        pos=frames,
+        tri_indices=topology.tri_indices,
+        uv=pattern.atlas_uv().astype(np.float32),
+        fps=float(fps),
+        seeds=[seed] * batch_size,
+        labels=[-1] * batch_size,
+        wind_levels=[0] * batch_size,
+        meta={
+            "scene": "garment_skirt",
+            "params": pattern.params,
+            "wind_speed": speed,
+            "level": level,
+        },
         capsules=np.repeat(caps.astype(np.float32)[None, None], batch_size, 0).repeat(
-            frames.shape[1], axis=1),
-    )  # fmt: skip
+            frames.shape[1], axis=1
+        ),
+    )
     return sequence, images
 
 
@@ -349,12 +398,19 @@ def _checked(cfg) -> dict:
         "fps": check_float(w.fps, "wind.fps", 1.0, 120.0),
     }
     return {
-        "threads": threads, "garment": garment, "params": params, "material": material,
-        "shape": shape, "pose": pose, "resize": check_bool(cfg.resize, "resize"),
-        "edge": edge, "wind": wind_args, "size": check_int(cfg.size, "size", 64, 2048),
+        "threads": threads,
+        "garment": garment,
+        "params": params,
+        "material": material,
+        "shape": shape,
+        "pose": pose,
+        "resize": check_bool(cfg.resize, "resize"),
+        "edge": edge,
+        "wind": wind_args,
+        "size": check_int(cfg.size, "size", 64, 2048),
         "export": check_choice(cfg.export, "export", ("obj", "ply")),
         "out_dir": Path(str(cfg.out_dir)),
-    }  # fmt: skip
+    }
 
 
 def run(cfg) -> TryOn:
@@ -387,8 +443,12 @@ def run(cfg) -> TryOn:
         bar.update(done - bar.n)
 
     try:
-        seq = wind(dressed, fps=f["wind"]["fps"], on_frame=on_frame,
-                   **{k: v for k, v in f["wind"].items() if k != "fps"})  # fmt: skip
+        seq = wind(
+            dressed,
+            fps=f["wind"]["fps"],
+            on_frame=on_frame,
+            **{k: v for k, v in f["wind"].items() if k != "fps"},
+        )
     finally:
         bar.close()
     size = f["size"]
@@ -396,18 +456,25 @@ def run(cfg) -> TryOn:
     from render.camera import CameraSpec
     from render.renderer import ClothRenderer
 
-    side = CameraSpec(position=(3.0, -3.0, 1.3), look_at=(0.0, 0.0, 0.9), yfov_deg=26.0,
-                      width=size, height=size)  # fmt: skip
+    side = CameraSpec(
+        position=(3.0, -3.0, 1.3), look_at=(0.0, 0.0, 0.9), yfov_deg=26.0, width=size, height=size
+    )
     caps = body.capsules(f["pose"].angles[None])[0]
     color = GARMENT_COLORS[f["garment"]]
     tri = dressed.pattern.topology.tri_indices
-    views = [render_scene(cam, scene_light("midday"), caps, [(dressed.pos, tri, color)],
-                          masks=False)[0] for cam in (camera, side)]  # fmt: skip
+    views = [
+        render_scene(cam, scene_light("midday"), caps, [(dressed.pos, tri, color)], masks=False)[0]
+        for cam in (camera, side)
+    ]
     with ClothRenderer(camera, scene_light("midday")) as renderer:
-        frames = np.stack([
-            render_scene(camera, None, caps, [(p, tri, color)], masks=False,
-                         renderer=renderer)[0] for p in seq.pos[0]
-        ])  # fmt: skip
+        frames = np.stack(
+            [
+                render_scene(camera, None, caps, [(p, tri, color)], masks=False, renderer=renderer)[
+                    0
+                ]
+                for p in seq.pos[0]
+            ]
+        )
     out_dir = f["out_dir"]
     out_dir.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".tryon-", dir=out_dir))

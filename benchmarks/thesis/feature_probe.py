@@ -43,8 +43,13 @@ from datasets.manifest import SPLIT_PROTOCOLS, Manifest
 from simulator.cloth.material import BEND_MULTIPLIERS, CLASS_COUNT
 
 __all__ = [
-    "FEATURES", "by_clip_index", "class_separation", "mlp_accuracy", "probe_markdown", "run_probe",
-]  # fmt: skip
+    "FEATURES",
+    "by_clip_index",
+    "class_separation",
+    "mlp_accuracy",
+    "probe_markdown",
+    "run_probe",
+]
 
 FEATURES = {
     "geometry": "vertex positions of all frames",
@@ -76,8 +81,9 @@ def _features(
         if kind in images:
             out[kind] = images[kind](manifest)
         elif kind in derived:
-            out[kind] = {k: derived[kind](v, frames[k]).astype(np.float32)
-                         for k, v in geometry.items()}  # fmt: skip
+            out[kind] = {
+                k: derived[kind](v, frames[k]).astype(np.float32) for k, v in geometry.items()
+            }
         else:
             out[kind] = geometry
     return out
@@ -220,8 +226,13 @@ def run_probe(
         by_clip_index(train, test, features["geometry"], epochs=epochs) if per_clip_index else {}
     )
     name = Path(data_dir).name
-    payload = {"data_dir": str(data_dir), "protocol": protocol, "epochs": epochs,
-               "results": results, "features": FEATURES}  # fmt: skip
+    payload = {
+        "data_dir": str(data_dir),
+        "protocol": protocol,
+        "epochs": epochs,
+        "results": results,
+        "features": FEATURES,
+    }
     if positions:
         payload["geometry_by_clip_index"] = {str(k): r for k, r in positions.items()}
     table = probe_markdown(name, protocol, epochs, results, positions, _clip_starts(manifest))
@@ -253,14 +264,20 @@ def probe_markdown(
         f"{100 * r['train_acc']:.1f} |"
         for kind, r in results.items()
     ]
-    return "\n".join([
-        f"# MLP references: {name} ({protocol} split)", "",
-        f"One-hidden-layer MLP (512 units) per feature, {epochs} epochs on the training clips, "
-        "scored on the test clips.", "",
-        "| features | what | test clips | top-1 % | stretch % | bend % | train fit % |",
-        "|---|---|---|---|---|---|---|", *rows, "",
-        *_positions_markdown(positions or {}, starts or {}),
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            f"# MLP references: {name} ({protocol} split)",
+            "",
+            f"One-hidden-layer MLP (512 units) per feature, {epochs} epochs on the training clips, "
+            "scored on the test clips.",
+            "",
+            "| features | what | test clips | top-1 % | stretch % | bend % | train fit % |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+            "",
+            *_positions_markdown(positions or {}, starts or {}),
+        ]
+    )
 
 
 def _positions_markdown(
@@ -275,16 +292,20 @@ def _positions_markdown(
         for k, r in positions.items()
     ]
     return [
-        "## When: the geometry MLP per clip position", "",
+        "## When: the geometry MLP per clip position",
+        "",
         "Trained and scored on clip k of every simulation only (fewer training clips than the "
         "table above). *Spread*: how far one class's clips scatter about their class mean; "
         "*spacing*: how far a class mean lies from the nearest other one (rms per vertex "
         "coordinate, cm, all clips of the position; `class_separation`). A spread above the "
-        "spacing means simulations of one class differ more than neighbouring classes do.", "",
+        "spacing means simulations of one class differ more than neighbouring classes do.",
+        "",
         "| clip | first frame | at [s] | test clips | top-1 % | stretch % | bend % "
         "| train fit % | spread cm | spacing cm |",
-        "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
-    ]  # fmt: skip
+        "|---|---|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -296,13 +317,15 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--protocol", default="simulation", choices=SPLIT_PROTOCOLS)
     parser.add_argument("--epochs", type=int, default=200)
     parser.add_argument(
-        "--by-clip-index", action="store_true",
+        "--by-clip-index",
+        action="store_true",
         help="also the geometry MLP per clip position in the recording",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--features", default=",".join(FEATURES),
+        "--features",
+        default=",".join(FEATURES),
         help=f"comma-separated subset of {','.join(FEATURES)} (default: all)",
-    )  # fmt: skip
+    )
     args = parser.parse_args(argv)
     if args.epochs < 1:
         parser.error(f"--epochs must be >= 1, got {args.epochs}")
@@ -310,9 +333,14 @@ def main(argv: list[str] | None = None) -> dict:
     if (error := _kinds_error(kinds, args.by_clip_index)) is not None:
         parser.error(f"--features: {error}")
     results = run_probe(
-        args.data_dir, args.mesh_cache, args.out, protocol=args.protocol, epochs=args.epochs,
-        per_clip_index=args.by_clip_index, kinds=kinds,
-    )  # fmt: skip
+        args.data_dir,
+        args.mesh_cache,
+        args.out,
+        protocol=args.protocol,
+        epochs=args.epochs,
+        per_clip_index=args.by_clip_index,
+        kinds=kinds,
+    )
     for kind, r in results.items():
         print(
             f"{kind:>16}: top-1 {100 * r['acc']:.1f} %, stretch {100 * r['stretch_acc']:.1f} %, "

@@ -62,23 +62,31 @@ from simulator.garment.curvature import regional_curvature
 from simulator.threads import use_process_threads
 
 THESIS = {
-    "sizing": {"tshirt": [90.2, 88.3, 89.8, 88.1, 88.3, 86.3],
-               "pants": [89.3, 87.6, 85.8, 83.3, 88.2, 87.5]},
-    "material": {"tshirt": [80.6, 81.3, 79.2, 81.5, 80.9, 82.0],
-                 "pants": [80.3, 78.6, 80.0, 80.7, 80.3, 80.5],
-                 "skirt": [80.2, 78.9, 81.3, 78.3]},
+    "sizing": {
+        "tshirt": [90.2, 88.3, 89.8, 88.1, 88.3, 86.3],
+        "pants": [89.3, 87.6, 85.8, 83.3, 88.2, 87.5],
+    },
+    "material": {
+        "tshirt": [80.6, 81.3, 79.2, 81.5, 80.9, 82.0],
+        "pants": [80.3, 78.6, 80.0, 80.7, 80.3, 80.5],
+        "skirt": [80.2, 78.9, 81.3, 78.3],
+    },
     "curvature": {"skirt": [86.7, 83.4, 85.3, 82.5]},
     "joints_max_deg": 9,
-}  # fmt: skip
+}
 """The *thesis*'s Tables 6.1-6.3 (percent; table column order = scene order here)."""
 
 TARGETS = {"sizing": 0.95, "material": 0.90, "joint_deg": 3.0, "minutes": 15.0}
 UPPER_JOINTS = {"shoulder_r", "shoulder_l", "elbow_r", "elbow_l", "wrist_r", "wrist_l"}
 """Joints whose Alg. 4 refinement comes from the t-shirt (the others from pants or skirt)."""
 SUMMARY_KEYS = (
-    "scenes", "sizing_accuracy_min", "material_accuracy_min", "curvature_accuracy_min",
-    "joint_angle_err_max_deg", "minutes_per_garment",
-)  # fmt: skip
+    "scenes",
+    "sizing_accuracy_min",
+    "material_accuracy_min",
+    "curvature_accuracy_min",
+    "joint_angle_err_max_deg",
+    "minutes_per_garment",
+)
 
 
 def occluded_joints(scene_pose: Pose, body: Mannequin, camera, garment_masks) -> dict[str, bool]:
@@ -107,23 +115,30 @@ def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dic
     caps = body.capsules(scene.pose_angles()[None])[0]
     garments = list(draped)
     image, person, masks = render_scene(
-        camera, scene_light(scene.lighting), caps,
-        [(r.pos[0].numpy(), p.topology.tri_indices, GARMENT_COLORS[g])
-         for g, (p, r) in draped.items()],
-    )  # fmt: skip
+        camera,
+        scene_light(scene.lighting),
+        caps,
+        [
+            (r.pos[0].numpy(), p.topology.tri_indices, GARMENT_COLORS[g])
+            for g, (p, r) in draped.items()
+        ],
+    )
     truth_pose = Pose(scene.pose_angles())
     occluded = occluded_joints(truth_pose, body, camera, masks)
     tick = time.perf_counter()
     fit = fit_body(person, skin_mask(image, person), camera, settings)
     body_seconds = time.perf_counter() - tick
-    log(f"{scene.name}: scene {tick - start:.0f} s, body fit {body_seconds:.0f} s, "
-        f"loss {fit.loss:.3f}")  # fmt: skip
+    log(
+        f"{scene.name}: scene {tick - start:.0f} s, body fit {body_seconds:.0f} s, "
+        f"loss {fit.loss:.3f}"
+    )
     results, poses = {}, {}
     for k, g in enumerate(garments):
         truth = next(s for s in scene.garments if s.garment == g)
         tick = time.perf_counter()
-        res = recover_garment(image, g, camera, settings, mask=masks[k], person=person,
-                              body_fit=fit)  # fmt: skip
+        res = recover_garment(
+            image, g, camera, settings, mask=masks[k], person=person, body_fit=fit
+        )
         minutes = (time.perf_counter() - tick) / 60.0
         # The true drape's regional curvature, regions from the true body.
         pattern, drape_res = draped[g]
@@ -139,33 +154,43 @@ def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dic
         timings = dict(res.timings)
         timings["body"] = timings.get("body", 0.0) + body_seconds / len(garments)
         results[g] = {
-            "params_true": truth.params, "params": res.pattern.params,
+            "params_true": truth.params,
+            "params": res.pattern.params,
             "sizing_accuracy": accuracy(res.pattern.params, truth.params),
-            "material_true": truth.material, "material": res.material,
+            "material_true": truth.material,
+            "material": res.material,
             "material_accuracy": accuracy(res.material, truth.material),
-            "curvature_true": k_true.tolist(), "curvature": res.curvature.tolist(),
+            "curvature_true": k_true.tolist(),
+            "curvature": res.curvature.tolist(),
             "curvature_target": res.curvature_target.tolist(),
             "curvature_accuracy": k_acc,
             "minutes": minutes + body_seconds / 60.0 / len(garments),
             "seconds_split": timings,
-        }  # fmt: skip
+        }
         poses[g] = res.pose
         row = results[g]
-        log(f"  {g}: G {row['sizing_accuracy']:.3f}, C {row['material_accuracy']:.3f}, "
-            f"K {k_acc:.3f}, {row['minutes']:.1f} min")  # fmt: skip
+        log(
+            f"  {g}: G {row['sizing_accuracy']:.3f}, C {row['material_accuracy']:.3f}, "
+            f"K {k_acc:.3f}, {row['minutes']:.1f} min"
+        )
     final = fit.pose.angles.copy()
     for i, name in enumerate(JOINTS):
-        source = "tshirt" if name in UPPER_JOINTS else next(
-            (g for g in garments if g != "tshirt"), None)  # fmt: skip
+        source = (
+            "tshirt" if name in UPPER_JOINTS else next((g for g in garments if g != "tshirt"), None)
+        )
         if source in poses:
             final[i] = poses[source].angles[i]
     errors = joint_angle_errors(Pose(final), truth_pose)
     return {
-        "scene": scene.name, "pose": scene.pose, "lighting": scene.lighting,
-        "garments": results, "joint_err_deg": errors, "occluded": occluded,
+        "scene": scene.name,
+        "pose": scene.pose,
+        "lighting": scene.lighting,
+        "garments": results,
+        "joint_err_deg": errors,
+        "occluded": occluded,
         "body_fit": {"height": fit.shape.height, "offset": fit.offset.tolist(), "loss": fit.loss},
         "seconds": time.perf_counter() - start,
-    }  # fmt: skip
+    }
 
 
 def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> list[dict]:
@@ -194,21 +219,31 @@ def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> li
     x0 = register_batch(topo, coords[:1], [pattern.params], body, angles[:1])
     settings = DrapeSettings(max_steps=200)
     caps = body.capsules(angles)
-    batch = GarmentBatch.build(topo, coords, garment_material(list(bends), [1.0] * n), caps,
-                               settings, pos_hint=np.repeat(x0, n, 0))  # fmt: skip
+    batch = GarmentBatch.build(
+        topo,
+        coords,
+        garment_material(list(bends), [1.0] * n),
+        caps,
+        settings,
+        pos_hint=np.repeat(x0, n, 0),
+    )
     pos = drape(batch, np.repeat(x0, n, 0), settings).pos
     regions = primitive_regions(body, "skirt")
     vr = vertex_regions(pos[0].numpy(), caps[0], regions)
-    k = regional_curvature(pos, torch.as_tensor(topo.tri_indices),
-                           torch.as_tensor(_hinges(topo)), vr, 1)[:, 0].numpy()  # fmt: skip
+    k = regional_curvature(
+        pos, torch.as_tensor(topo.tri_indices), torch.as_tensor(_hinges(topo)), vr, 1
+    )[:, 0].numpy()
     camera = scene_camera()
     rows = []
     for b, bend in enumerate(bends):
         row = {"bend": bend, "curvature": float(k[b])}
         for light in LIGHTINGS:
-            image, _, masks = render_scene(camera, scene_light(light), caps[b],
-                                           [(pos[b].numpy(), topo.tri_indices,
-                                             GARMENT_COLORS["skirt"])])  # fmt: skip
+            image, _, masks = render_scene(
+                camera,
+                scene_light(light),
+                caps[b],
+                [(pos[b].numpy(), topo.tri_indices, GARMENT_COLORS["skirt"])],
+            )
             rmap = region_map(camera, caps[b], regions, masks[0])
             p, _ = wrinkle_density(image, masks[0], rmap, 1, pixel_size(camera))
             row[f"density_{light}"] = float(p[0])
@@ -220,9 +255,9 @@ def summarise(rows: list[dict]) -> dict:
     """The summary keys over all scenes."""
     sizing = [g["sizing_accuracy"] for r in rows for k, g in r["garments"].items()]
     material = [g["material_accuracy"] for r in rows for g in r["garments"].values()]
-    curvature = [g["curvature_accuracy"] for r in rows for k, g in r["garments"].items()
-                 if k == "skirt"] or [g["curvature_accuracy"] for r in rows
-                                      for g in r["garments"].values()]  # fmt: skip
+    curvature = [
+        g["curvature_accuracy"] for r in rows for k, g in r["garments"].items() if k == "skirt"
+    ] or [g["curvature_accuracy"] for r in rows for g in r["garments"].values()]
     visible = [e for r in rows for j, e in r["joint_err_deg"].items() if not r["occluded"][j]]
     minutes = [g["minutes"] for r in rows for g in r["garments"].values()]
     return {
@@ -238,8 +273,10 @@ def summarise(rows: list[dict]) -> dict:
 
 def print_tables(rows: list[dict]) -> None:
     """Ours beside the thesis's, per scene."""
-    print(f"{'scene':22s} {'garment':7s} {'G ours':>7s} {'G thesis':>8s} {'C ours':>7s} "
-          f"{'C thesis':>8s} {'K ours':>7s} {'K thesis':>8s} {'min':>5s}")  # fmt: skip
+    print(
+        f"{'scene':22s} {'garment':7s} {'G ours':>7s} {'G thesis':>8s} {'C ours':>7s} "
+        f"{'C thesis':>8s} {'K ours':>7s} {'K thesis':>8s} {'min':>5s}"
+    )
     idx = {"tshirt": 0, "pants": 0, "skirt": 0}
     for r in rows:
         for g, m in r["garments"].items():
@@ -270,12 +307,16 @@ def print_tables(rows: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> dict:
     """Run the scenes, print the tables, write the JSON; returns the summary."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true",
-                        help="one skirt scene, coarse mesh, small swarms (< 10 min)")  # fmt: skip
+    parser.add_argument(
+        "--quick", action="store_true", help="one skirt scene, coarse mesh, small swarms (< 10 min)"
+    )
     parser.add_argument("--scenes", nargs="+", help="scene names (default: all ten)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="JSON file (default: docs/results/garment_tables.json; "
-                             "--quick: none)")  # fmt: skip
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="JSON file (default: docs/results/garment_tables.json; --quick: none)",
+    )
     parser.add_argument("--edge-length", type=float, default=None, help="m (default 0.05)")
     parser.add_argument("--swarm", type=int, default=None, help="particles per swarm (16)")
     parser.add_argument("--seed", type=int, default=0)
@@ -288,9 +329,16 @@ def main(argv: list[str] | None = None) -> dict:
     use_process_threads(1, name="threads")
     if args.quick:
         settings = RecoverySettings(
-            edge_length=0.07, swarm_size=8, rounds=2, sizing_iters=3, material_iters=2,
-            joint_rounds=1, pose_iters=2, body_iters=80, seed=args.seed,
-        )  # fmt: skip
+            edge_length=0.07,
+            swarm_size=8,
+            rounds=2,
+            sizing_iters=3,
+            material_iters=2,
+            joint_rounds=1,
+            pose_iters=2,
+            body_iters=80,
+            seed=args.seed,
+        )
         names = args.scenes or ["skirt_low_midday"]
     else:
         settings = RecoverySettings(seed=args.seed)
@@ -317,8 +365,10 @@ def main(argv: list[str] | None = None) -> dict:
             + " ".join(f"{'P ' + k[8:]:>10s}" for k in probe[0] if k.startswith("d"))
         )
         for row in probe:
-            print(f"{row['bend']:6.1f} {row['curvature']:8.2f} " + " ".join(
-                f"{v:10.2f}" for k, v in row.items() if k.startswith("density")))  # fmt: skip
+            print(
+                f"{row['bend']:6.1f} {row['curvature']:8.2f} "
+                + " ".join(f"{v:10.2f}" for k, v in row.items() if k.startswith("density"))
+            )
         print(json.dumps(probe))
         return {"probe": probe}
 
@@ -333,12 +383,16 @@ def main(argv: list[str] | None = None) -> dict:
             "targets": TARGETS,
             "thesis": THESIS,
             "settings": dataclasses.asdict(settings),
-            "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
-                        "torch": torch.__version__, "threads": 1},
+            "machine": {
+                "cpu_count": os.cpu_count(),
+                "python": platform.python_version(),
+                "torch": torch.__version__,
+                "threads": 1,
+            },
             "command": "python -m benchmarks.thesis.garment_tables"
             + (" --quick" if args.quick else ""),
             "rows": rows,
-        }  # fmt: skip
+        }
         out.parent.mkdir(parents=True, exist_ok=True)
         from simulator.sequence import atomic_write_bytes
 

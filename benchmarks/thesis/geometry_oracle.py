@@ -38,8 +38,13 @@ from datasets.spec import physics_key_of
 from simulator.sequence import MeshSequence
 
 __all__ = [
-    "clip_geometry", "clip_motion", "clip_pixels", "oracle_accuracy", "run_oracle", "write_report",
-]  # fmt: skip
+    "clip_geometry",
+    "clip_motion",
+    "clip_pixels",
+    "oracle_accuracy",
+    "run_oracle",
+    "write_report",
+]
 
 PIXEL_SIZE = 32
 """Side of the downsampled mean frame of the pixel reference [px]."""
@@ -72,8 +77,10 @@ def clip_geometry(manifest: Manifest, cache_dir: str | Path) -> dict[str, np.nda
                 f"{manifest.root} (regenerate with mesh_cache={cache_dir}, or pass --mesh-cache)"
             )
         seq = MeshSequence.load(path)
-        index = {(int(label), int(seed)): b for b, (label, seed) in
-                 enumerate(zip(seq.labels, seq.seeds, strict=True))}  # fmt: skip
+        index = {
+            (int(label), int(seed)): b
+            for b, (label, seed) in enumerate(zip(seq.labels, seq.seeds, strict=True))
+        }
         for record in records:
             b = index[(int(record["class_id"]), int(record["seed"]))]
             start = int(record["start_frame"])
@@ -85,8 +92,10 @@ def clip_geometry(manifest: Manifest, cache_dir: str | Path) -> dict[str, np.nda
 def _clip_features(manifest: Manifest, feature) -> dict[str, np.ndarray]:
     """``clip key -> float32 feature(frames (T, 3, H, W) in [0, 1]) flattened``."""
     clips = ClothClipDataset(manifest.root, None, verify=False)
-    return {record["key"]: feature(clip_tensor(clips.read(i)[1])).reshape(-1).numpy()
-            for i, record in enumerate(clips.records)}  # fmt: skip
+    return {
+        record["key"]: feature(clip_tensor(clips.read(i)[1])).reshape(-1).numpy()
+        for i, record in enumerate(clips.records)
+    }
 
 
 def clip_pixels(manifest: Manifest, size: int = PIXEL_SIZE) -> dict[str, np.ndarray]:
@@ -135,8 +144,11 @@ def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path)
     Returns ``{"geometry" | "pixels" | "motion": {protocol: accuracies}}``.
     """
     manifest = Manifest.load(data_dir)
-    features = {"geometry": clip_geometry(manifest, cache_dir), "pixels": clip_pixels(manifest),
-                "motion": clip_motion(manifest)}  # fmt: skip
+    features = {
+        "geometry": clip_geometry(manifest, cache_dir),
+        "pixels": clip_pixels(manifest),
+        "motion": clip_motion(manifest),
+    }
     results = {
         kind: {
             protocol: oracle_accuracy(
@@ -154,14 +166,21 @@ def run_oracle(data_dir: str | Path, cache_dir: str | Path, out_dir: str | Path)
         for kind, by_protocol in results.items()
         for p, r in by_protocol.items()
     ]
-    table = "\n".join([
-        f"# 1-NN references: {name}", "",
-        "1-nearest-neighbour of each test clip among the training clips, on:", "",
-        *[f"* {kind}: {text}" for kind, text in FEATURES.items()], "",
-        "| features | split protocol | test clips | top-1 % | stretch % | bend % | "
-        "NN from own sim % |",
-        "|---|---|---|---|---|---|---|", *rows, "",
-    ])  # fmt: skip
+    table = "\n".join(
+        [
+            f"# 1-NN references: {name}",
+            "",
+            "1-nearest-neighbour of each test clip among the training clips, on:",
+            "",
+            *[f"* {kind}: {text}" for kind, text in FEATURES.items()],
+            "",
+            "| features | split protocol | test clips | top-1 % | stretch % | bend % | "
+            "NN from own sim % |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+            "",
+        ]
+    )
     write_report(out_dir, name, payload, table)
     return results
 

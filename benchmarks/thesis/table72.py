@@ -134,8 +134,13 @@ def render_table(
     notes = set()
     budgets: list[str] = []
     missing: list[str] = []
-    settings = [(lv, m, t, p) for lv in levels for m, names in presets.items()
-                for t in textures for p in names]  # fmt: skip
+    settings = [
+        (lv, m, t, p)
+        for lv in levels
+        for m, names in presets.items()
+        for t in textures
+        for p in names
+    ]
     for level, motion, texture, preset in settings:
         mesh = f"L{level} " if len(levels) > 1 else ""
         thesis = THESIS_TABLE_72.get((thesis_motion(motion), level), (None, None, None))
@@ -152,19 +157,29 @@ def render_table(
                 continue
             ours = [_cell(results.get(m)) for m in METHODS]
             clips = next(r["clips"] for r in results.values())
-            rows.append([motion, f"Unif-{level}", texture, preset, label, variant, clips, *ours,
-                         *theirs])  # fmt: skip
+            rows.append(
+                [motion, f"Unif-{level}", texture, preset, label, variant, clips, *ours, *theirs]
+            )
             for method, result in results.items():
                 if result.get("device"):
                     notes.add(f"{result['device']}")
                 if "epochs" in result:
                     minutes = result.get("train_minutes", 0.0)
                     setting = f"{mesh}{motion} {texture} {preset}{tag}"
-                    budgets.append(f"{setting} {method} {result['epochs']} epochs / "
-                                   f"{minutes:.0f} min")  # fmt: skip
-    header = ["motion", "mesh", "texture", "preset", "split", "training", "test clips",
-              *[f"ours {v}" for v in METHODS.values()],
-              *[f"thesis {METHODS[m]}" for m in THESIS_METHODS]]  # fmt: skip
+                    budgets.append(
+                        f"{setting} {method} {result['epochs']} epochs / {minutes:.0f} min"
+                    )
+    header = [
+        "motion",
+        "mesh",
+        "texture",
+        "preset",
+        "split",
+        "training",
+        "test clips",
+        *[f"ours {v}" for v in METHODS.values()],
+        *[f"thesis {METHODS[m]}" for m in THESIS_METHODS],
+    ]
     text = markdown_table(header, rows)
     text += (
         "\nOurs: top-1 % over 54 classes on the test clips (top-5 % in brackets; chance is "
@@ -204,24 +219,29 @@ def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--log-dir", type=Path, default=Path("logs"))
     parser.add_argument(
-        "--ledger", type=Path, default=Path("reports/runs"),
+        "--ledger",
+        type=Path,
+        default=Path("reports/runs"),
         help="committed copies of the runs' results (read when a run folder is gone)",
-    )  # fmt: skip
+    )
     parser.add_argument("--level", default="1", help="mesh level(s) 1-3, a,b")
     parser.add_argument("--texture", default="random", help="texture(s), a,b")
     parser.add_argument("--preset", default="full", help="preset(s) of both motions, a,b")
     parser.add_argument("--wind-preset", default=None, help="overrides --preset for wind")
     parser.add_argument("--arm-preset", default=None, help="overrides --preset for arm")
     parser.add_argument(
-        "--scenes", default="wind,arm",
+        "--scenes",
+        default="wind,arm",
         help="dataset prefixes, a,b (e.g. armstrokes: arm data generated with scenario.strokes)",
-    )  # fmt: skip
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("docs/results/table72.md"))
     parser.add_argument(
-        "--readme", type=Path, default=None,
+        "--readme",
+        type=Path,
+        default=None,
         help="also replace the table72 block of this Markdown file (e.g. README.md)",
-    )  # fmt: skip
+    )
     args = parser.parse_args(argv)
     motion_presets = {
         "wind": (args.wind_preset or args.preset).split(","),
@@ -242,8 +262,9 @@ def main(argv: list[str] | None = None) -> str:
         presets=presets,
         seed=args.seed,
     )
-    write_text(args.out, "# Table 7.2 (style): material classification on simulated clips\n\n"
-               + table)  # fmt: skip
+    write_text(
+        args.out, "# Table 7.2 (style): material classification on simulated clips\n\n" + table
+    )
     if args.readme is not None:
         update_readme(args.readme, table)
     print(table)

@@ -27,9 +27,17 @@ from common.paths import check_output_dir
 log = logging.getLogger(__name__)
 
 _INT_AT_LEAST = {
-    "seed": 0, "repeats": 1, "elements": 2, "tet_target": 1, "max_iters": 1, "threads": 1,
-    "trials": 1, "frames": 2, "passes": 1, "truth_mesh_refine": 1,
-}  # fmt: skip
+    "seed": 0,
+    "repeats": 1,
+    "elements": 2,
+    "tet_target": 1,
+    "max_iters": 1,
+    "threads": 1,
+    "trials": 1,
+    "frames": 2,
+    "passes": 1,
+    "truth_mesh_refine": 1,
+}
 """Integer fields of the tissue jobs (scalars or each entry of a list) and their minimum."""
 _POSITIVE = ("ratios", "tumour_kpa", "moduli_kpa")
 """Number fields (lists) whose entries must be > 0."""

@@ -44,9 +44,10 @@ ALEXNET_WIDTHS = (64, 192, 384, 256, 256)
 
 def torch_checkpoint_dir() -> Path:
     """Where torch keeps downloaded weights: ``$TORCH_HOME/hub/checkpoints``."""
-    home = os.environ.get("TORCH_HOME") or Path(
-        os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")
-    ) / "torch"
+    home = (
+        os.environ.get("TORCH_HOME")
+        or Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "torch"
+    )
     return Path(home) / "hub" / "checkpoints"
 
 
@@ -162,8 +163,9 @@ class FrameEncoder(nn.Module):
         loaded = len(state) - len(unexpected)
         if loaded == 0:
             raise ValueError(f"pretrained file {path} holds no weights of encoder {self.name}")
-        log.info("encoder %s: %d tensors from %s (%d left random)", self.name, loaded, path,
-                 len(missing))  # fmt: skip
+        log.info(
+            "encoder %s: %d tensors from %s (%d left random)", self.name, loaded, path, len(missing)
+        )
         return str(path)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
@@ -171,4 +173,3 @@ class FrameEncoder(nn.Module):
         if frames.ndim != 4 or frames.shape[1] != 3:
             raise ValueError(f"frames must have shape (N, 3, H, W), got {tuple(frames.shape)}")
         return self.fc6(self.trunk((frames - self.mean) / self.std))
-

@@ -147,8 +147,11 @@ class CNNLSTMNet(nn.Module):
         if motion_encoder_checkpoint and motion_encoder is None:
             raise ValueError("motion_encoder_checkpoint needs a motion_encoder")
         self.inputs = inputs
-        for name, value in (("hidden_size", hidden_size), ("num_layers", num_layers),
-                            ("num_classes", num_classes)):  # fmt: skip
+        for name, value in (
+            ("hidden_size", hidden_size),
+            ("num_layers", num_layers),
+            ("num_classes", num_classes),
+        ):
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
         self.encoder = encoder

@@ -100,14 +100,18 @@ def fit_strength(
         gap = gaps[rung]
         saturated = before.saturated(rung)
         reference, floor, measure = (
-            (before.divergence[rung], 0.0, classifier_divergence) if saturated
+            (before.divergence[rung], 0.0, classifier_divergence)
+            if saturated
             else (gap.auc, _auc_floor(gap), weighted_auc)
-        )  # fmt: skip
+        )
         span = max(reference - floor, 1e-3)
         for i, features in enumerate(sets):
             codes_x = np.unique(features.groups, return_inverse=True)[1].reshape(-1)
-            rows_x = (draws_x if draws_x is not None else
-                      bootstrap_draws(int(codes_x.max()) + 1, n_boot, rng))[codes_x]  # fmt: skip
+            rows_x = (
+                draws_x
+                if draws_x is not None
+                else bootstrap_draws(int(codes_x.max()) + 1, n_boot, rng)
+            )[codes_x]
             weights = np.concatenate([rows_x, draws_y[codes_y]]).astype(np.float64)
             labels = np.r_[np.zeros(len(codes_x)), np.ones(len(codes_y))]
             scores = result.scores_oof[rung][i]

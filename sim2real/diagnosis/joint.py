@@ -38,10 +38,25 @@ from .reference import Reference
 from .scoring import candidate_result, oof_divergence
 
 __all__ = [
-    "JOINT_TOLERANCE", "MATTERS", "NOMINAL", "Assignment", "Factor", "JointFit", "Screen",
-    "Value", "assignment", "attribute", "calibrate", "closure_values", "divergence_closure",
-    "fit_jointly", "nominal_scores", "point_closures", "select", "strength_intervals",
-]  # fmt: skip
+    "JOINT_TOLERANCE",
+    "MATTERS",
+    "NOMINAL",
+    "Assignment",
+    "Factor",
+    "JointFit",
+    "Screen",
+    "Value",
+    "assignment",
+    "attribute",
+    "calibrate",
+    "closure_values",
+    "divergence_closure",
+    "fit_jointly",
+    "nominal_scores",
+    "point_closures",
+    "select",
+    "strength_intervals",
+]
 
 
 JOINT_TOLERANCE = 0.01
@@ -145,9 +160,17 @@ def divergence_closure(
 
 def nominal_scores(reference: Reference) -> dict[str, np.ndarray]:
     """S's own out-of-fold scores against R per scored rung, as every set's are measured."""
-    scored = candidate_result("S", "null", (None,), [reference.nominal], reference.nominal,
-                              reference.real, reference.gaps, reference.rungs,
-                              reference.before)  # fmt: skip
+    scored = candidate_result(
+        "S",
+        "null",
+        (None,),
+        [reference.nominal],
+        reference.nominal,
+        reference.real,
+        reference.gaps,
+        reference.rungs,
+        reference.before,
+    )
     return {rung: scored.scores_oof[rung][0] for rung in reference.rungs}
 
 
@@ -157,9 +180,17 @@ def _set_scores(sets: Sequence[LadderFeatures], reference: Reference):
     for features in sets:
         if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
             raise ValueError("closure_values: every set must hold S's simulations, in S's order")
-    scored = candidate_result("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets], sim,
-                              reference.real, reference.gaps, reference.rungs,
-                              reference.before)  # fmt: skip
+    scored = candidate_result(
+        "joint",
+        "joint",
+        (None,) * (len(sets) + 1),
+        [sim, *sets],
+        sim,
+        reference.real,
+        reference.gaps,
+        reference.rungs,
+        reference.before,
+    )
     nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
     own = [{rung: oof[i + 1] for rung, oof in scored.scores_oof.items()} for i in range(len(sets))]
     return nominal, own
@@ -190,10 +221,12 @@ def closure_values(
     draws_y = bootstrap_draws(int(codes_y.max()) + 1, n_boot, rng)
     weights = np.concatenate([draws_x[codes_x], draws_y[codes_y]]).astype(np.float64)
     return [
-        Value(float(divergence_closure(nominal, scores, reference)),
-              divergence_closure(nominal, scores, reference, weights))
+        Value(
+            float(divergence_closure(nominal, scores, reference)),
+            divergence_closure(nominal, scores, reference, weights),
+        )
         for scores in own
-    ]  # fmt: skip
+    ]
 
 
 def _nominal(count: int) -> Value:
@@ -232,16 +265,19 @@ def calibrate(
             values = evaluate(batch)
             closures = [v.closure for v in values]
             best = int(np.nanargmax(np.nan_to_num(closures, nan=-np.inf)))
-            if (tried[best] != current[factor.name]
-                    and closures[best] > value.closure + tolerance):  # fmt: skip
+            if tried[best] != current[factor.name] and closures[best] > value.closure + tolerance:
                 current[factor.name] = tried[best]
                 value = values[best]
                 moved = True
-            path.append({
-                "round": round_ + 1, "factor": factor.name,
-                "tried": [_shown(t) for t in tried], "closure": closures,
-                "kept": _shown(current[factor.name]),
-            })  # fmt: skip
+            path.append(
+                {
+                    "round": round_ + 1,
+                    "factor": factor.name,
+                    "tried": [_shown(t) for t in tried],
+                    "closure": closures,
+                    "kept": _shown(current[factor.name]),
+                }
+            )
         if not moved:
             break
     return assignment(current), value, path
@@ -294,14 +330,15 @@ def select(
         k = int(np.argmax([v.closure for v in values]))
         chosen, measured = shortlist[k], values[k]
         low, _ = _interval(measured.replicates - value.replicates)
-        added = (measured.closure - value.closure >= gain and low > 0
-                 and measured.closure > floor)  # fmt: skip
-        path.append({
-            "step": len(current) + 1,
-            "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
-            "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
-            "added": chosen if added else None,
-        })  # fmt: skip
+        added = measured.closure - value.closure >= gain and low > 0 and measured.closure > floor
+        path.append(
+            {
+                "step": len(current) + 1,
+                "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
+                "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
+                "added": chosen if added else None,
+            }
+        )
         if not added:
             break
         current[chosen] = best[chosen][1]
@@ -310,8 +347,9 @@ def select(
     return chosen_factors, assignment(current), value, path
 
 
-def _round_robin(estimates: dict[str, tuple[float, object]], stages: dict[str, str],
-                 count: int) -> list[str]:  # fmt: skip
+def _round_robin(
+    estimates: dict[str, tuple[float, object]], stages: dict[str, str], count: int
+) -> list[str]:
     """``count`` factors: each stage's best screened, then each stage's second, and so on.
 
     The screen adds features linearly, so it misjudges an effect whose change depends on
@@ -384,7 +422,8 @@ class JointFit:
             )
         parts = [
             f"{100 * v:.0f} % {self.factors[n]} ({n}"
-            + ("" if self.strengths[n] is None else f" at {self.strengths[n]!r}") + ")"
+            + ("" if self.strengths[n] is None else f" at {self.strengths[n]!r}")
+            + ")"
             for n, v in sorted(self.shapley.items(), key=lambda kv: -kv[1])
         ]
         return (
@@ -415,17 +454,21 @@ class JointFit:
             return {k: (number(v[0]), number(v[1])) for k, v in values.items()}
 
         return cls(
-            factors=dict(data["factors"]), strengths=dict(data["strengths"]),
+            factors=dict(data["factors"]),
+            strengths=dict(data["strengths"]),
             strength_interval=pairs(data.get("strength_interval", {})),
             closure=number(data["closure"]),
-            closure_interval=(number(data["closure_interval"][0]),
-                              number(data["closure_interval"][1])),
+            closure_interval=(
+                number(data["closure_interval"][0]),
+                number(data["closure_interval"][1]),
+            ),
             reset={k: number(v) for k, v in data["reset"].items()},
             reset_interval=pairs(data["reset_interval"]),
             shapley={k: number(v) for k, v in data["shapley"].items()},
-            shapley_interval=pairs(data["shapley_interval"]), path=list(data["path"]),
+            shapley_interval=pairs(data["shapley_interval"]),
+            path=list(data["path"]),
             sets=int(data["sets"]),
-        )  # fmt: skip
+        )
 
 
 def attribute(
@@ -441,23 +484,28 @@ def attribute(
     alone = evaluate([assignment({**strengths, n: NOMINAL}) for n in strengths])
     reset = {n: value.closure - v.closure for n, v in zip(strengths, alone, strict=True)}
     reset_interval = {
-        n: _interval(value.replicates - v.replicates)
-        for n, v in zip(strengths, alone, strict=True)
+        n: _interval(value.replicates - v.replicates) for n, v in zip(strengths, alone, strict=True)
     }
     kept = {n: s for n, s in strengths.items() if reset[n] >= matters}
     players = sorted(kept)
-    coalitions = [frozenset(c) for k in range(len(players) + 1)
-                  for c in itertools.combinations(players, k)]  # fmt: skip
+    coalitions = [
+        frozenset(c) for k in range(len(players) + 1) for c in itertools.combinations(players, k)
+    ]
     values = evaluate([assignment({n: kept[n] for n in c}) for c in coalitions])
     by_coalition = dict(zip(coalitions, values, strict=True))
     if not players:
         return reset, reset_interval, {}, {}, (), _nominal(len(value.replicates))
     point = shapley_values(players, {c: v.closure for c, v in by_coalition.items()})
-    draws = np.stack([
-        list(shapley_values(players, {c: float(v.replicates[b])
-                                      for c, v in by_coalition.items()}).values())
-        for b in range(len(value.replicates))
-    ])  # fmt: skip
+    draws = np.stack(
+        [
+            list(
+                shapley_values(
+                    players, {c: float(v.replicates[b]) for c, v in by_coalition.items()}
+                ).values()
+            )
+            for b in range(len(value.replicates))
+        ]
+    )
     intervals = {n: _interval(draws[:, i]) for i, n in enumerate(players)}  # players' order
     full = by_coalition[frozenset(players)]
     return reset, reset_interval, point, intervals, assignment(kept), full
@@ -480,8 +528,11 @@ def strength_intervals(
         if not isinstance(current, int | float) or len(numeric) < 2:
             continue
         values = evaluate([assignment({**strengths, factor.name: o}) for o in numeric])
-        close = [o for o, v in zip(numeric, values, strict=True)
-                 if _interval(value.replicates - v.replicates)[0] <= 0 or o == current]  # fmt: skip
+        close = [
+            o
+            for o, v in zip(numeric, values, strict=True)
+            if _interval(value.replicates - v.replicates)[0] <= 0 or o == current
+        ]
         out[factor.name] = (float(min(close)), float(max(close)))
     return out
 
@@ -516,17 +567,24 @@ def fit_jointly(
 
     path: list[dict] = []
     if screen is not None:
-        factors, _, _, path = select(factors, cached, screen, top=top, verify=verify,
-                                     gain=matters, floor=floor)  # fmt: skip
+        factors, _, _, path = select(
+            factors, cached, screen, top=top, verify=verify, gain=matters, floor=floor
+        )
     calibrated, value, steps = calibrate(factors, cached, rounds=rounds, tolerance=tolerance)
     reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
         calibrated, value, cached, matters=matters
     )
     intervals = strength_intervals(factors, kept, full, cached)
     return JointFit(
-        factors={f.name: f.stage for f in factors}, strengths=dict(kept),
+        factors={f.name: f.stage for f in factors},
+        strengths=dict(kept),
         strength_interval=intervals,
-        closure=full.closure, closure_interval=_interval(full.replicates),
-        reset=reset, reset_interval=reset_interval, shapley=shapley,
-        shapley_interval=shapley_interval, path=path + steps, sets=len(memo),
-    )  # fmt: skip
+        closure=full.closure,
+        closure_interval=_interval(full.replicates),
+        reset=reset,
+        reset_interval=reset_interval,
+        shapley=shapley,
+        shapley_interval=shapley_interval,
+        path=path + steps,
+        sets=len(memo),
+    )

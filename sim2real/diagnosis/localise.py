@@ -20,8 +20,6 @@ from ..stats import (
 __all__ = ["harmonic_mean_p", "localise", "rung_gaps", "scored_rungs"]
 
 
-
-
 def rung_gaps(
     sim: LadderFeatures,
     real: LadderFeatures,
@@ -49,11 +47,17 @@ def rung_gaps(
         x, y = sim.rungs[name], real.rungs[name]
         pooled = np.concatenate([x, y])
         out[name] = compare(
-            x, y, sim.groups, real.groups, reference=pooled,
+            x,
+            y,
+            sim.groups,
+            real.groups,
+            reference=pooled,
             bandwidth=median_bandwidth(standardize(pooled)),
-            n_perm=n_perm, n_boot=n_boot, n_floor=n_floor,
+            n_perm=n_perm,
+            n_boot=n_boot,
+            n_floor=n_floor,
             rng=np.random.default_rng(np.append(seed, i)),  # flat: numpy >= 2.5 refuses nesting
-        )  # fmt: skip
+        )
     return out
 
 
@@ -71,8 +75,9 @@ def harmonic_mean_p(p_values) -> float:
     if np.any(p <= 0):
         return 0.0
     count = p.size
-    return float(min(1.0, sstats.landau.sf(np.mean(1.0 / p), loc=math.log(count) + 0.874,
-                                           scale=math.pi / 2)))  # fmt: skip
+    return float(
+        min(1.0, sstats.landau.sf(np.mean(1.0 / p), loc=math.log(count) + 0.874, scale=math.pi / 2))
+    )
 
 
 def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
@@ -97,8 +102,9 @@ def localise(gaps: dict[str, Gap], *, alpha: float = 0.05) -> dict:
     bonferroni = [n for n in names if gaps[n].p_gap < threshold and above_floor(gaps[n])]
     significant = (
         [n for n in names if gaps[n].p_gap < alpha and above_floor(gaps[n])]
-        if gap_p < alpha else []
-    )  # fmt: skip
+        if gap_p < alpha
+        else []
+    )
     layers = [n for n in names if n not in hand_rung_names()]
     first_layer = next((n for n in layers if n in significant), None)
     jump, rise = None, -math.inf
@@ -136,6 +142,7 @@ def scored_rungs(location: dict, scoreable: Callable[[str], bool] | None = None)
 
     def pick(accept: Callable[[str], bool]) -> list[str]:
         return [n for n in hand_rung_names() if n in significant and accept(n)] + next(
-            ([n] for n in layers if accept(n)), [])  # fmt: skip
+            ([n] for n in layers if accept(n)), []
+        )
 
     return (scoreable is not None and pick(scoreable)) or pick(lambda _: True)

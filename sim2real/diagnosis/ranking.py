@@ -98,9 +98,10 @@ def kernel_strengths(result: CandidateResult, threshold: float) -> list[int]:
     """
     low, high = result.interval
     inside = [
-        i for i, (s, v) in enumerate(zip(result.strengths, result.score, strict=True))
+        i
+        for i, (s, v) in enumerate(zip(result.strengths, result.score, strict=True))
         if low is not None and isinstance(s, int | float) and low <= s <= high and v >= threshold
-    ]  # fmt: skip
+    ]
     return sorted({result.best, *inside})
 
 
@@ -119,8 +120,11 @@ def explains_together(
     kernel closure agrees (:func:`agrees`), and every member adds: the group closes more
     than each of ``without``, the closures of the group without one member.
     """
-    return (score >= threshold + OPEN_SET_MARGIN and agrees(kernel)
-            and all(score > other for other in without))  # fmt: skip
+    return (
+        score >= threshold + OPEN_SET_MARGIN
+        and agrees(kernel)
+        and all(score > other for other in without)
+    )
 
 
 def rank_candidates(
@@ -141,9 +145,10 @@ def rank_candidates(
     (``neutral_in_interval``, :data:`NEUTRAL_RULE`).
     """
     ranked = sorted(
-        results, key=lambda r: (r.best_score, not r.holds_neutral, -_distance_at_best(r)),
+        results,
+        key=lambda r: (r.best_score, not r.holds_neutral, -_distance_at_best(r)),
         reverse=True,
-    )  # fmt: skip
+    )
     null_score = null.best_score if null is not None else 0.0
     threshold = max(min_closure, null_score + OPEN_SET_MARGIN)
     top = ranked[0] if ranked else None
@@ -151,9 +156,10 @@ def rank_candidates(
     closes = top is not None and top.best_score >= threshold
     indistinct = top is not None and top.holds_neutral
     confusable = [
-        r.name for r in ranked[1:]
+        r.name
+        for r in ranked[1:]
         if top is not None and r.best_score >= top.best_score - CONFUSABLE_WITHIN
-    ]  # fmt: skip
+    ]
     stages = {}
     for stage in STAGES:
         inside = [r for r in ranked if r.stage == stage]

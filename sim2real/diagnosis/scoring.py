@@ -142,9 +142,10 @@ class CandidateResult:
         if self.fit_interval is not None:
             return tuple(self.fit_interval)
         values = [
-            s for s, v in zip(self.strengths, self.score, strict=True)
+            s
+            for s, v in zip(self.strengths, self.score, strict=True)
             if isinstance(s, int | float) and v >= self.best_score - CONFUSABLE_WITHIN
-        ]  # fmt: skip
+        ]
         return (min(values), max(values)) if values else (None, None)
 
     @property
@@ -163,12 +164,17 @@ class CandidateResult:
 
     def to_json(self) -> dict:
         """Plain JSON."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-               if f.name != "scores_oof"}  # fmt: skip
+        out = {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if f.name != "scores_oof"
+        }
         out.update(
-            best_strength=self.best_strength, best_score=self.best_score,
-            fitted_strength=self.fitted_strength, strength_interval=list(self.interval),
-        )  # fmt: skip
+            best_strength=self.best_strength,
+            best_score=self.best_score,
+            fitted_strength=self.fitted_strength,
+            strength_interval=list(self.interval),
+        )
         return out
 
     @classmethod
@@ -186,13 +192,17 @@ class CandidateResult:
 
         interval = data.get("fit_interval")
         return cls(
-            name=data["name"], stage=data["stage"], strengths=tuple(data["strengths"]),
-            mmd2=per_rung(data["mmd2"]), closure=per_rung(data["closure"]),
-            score=numbers(data["score"]), closure_auc=per_rung(data.get("closure_auc", {})),
+            name=data["name"],
+            stage=data["stage"],
+            strengths=tuple(data["strengths"]),
+            mmd2=per_rung(data["mmd2"]),
+            closure=per_rung(data["closure"]),
+            score=numbers(data["score"]),
+            closure_auc=per_rung(data.get("closure_auc", {})),
             fitted=data.get("fitted"),
             fit_interval=None if interval is None else tuple(interval),
             neutral=data.get("neutral"),
-        )  # fmt: skip
+        )
 
 
 AUC_REPEATS = 2
@@ -207,10 +217,12 @@ def _oof(sim: LadderFeatures, features: LadderFeatures, real: LadderFeatures, ru
     """
     pooled = np.concatenate([sim.rungs[rung], real.rungs[rung]])
     xs, ys = _scaled(pooled, features.rungs[rung], real.rungs[rung])
-    return np.stack([
-        domain_scores(xs, ys, features.groups, real.groups, rng=np.random.default_rng([r, 17]))
-        for r in range(AUC_REPEATS)
-    ])  # fmt: skip
+    return np.stack(
+        [
+            domain_scores(xs, ys, features.groups, real.groups, rng=np.random.default_rng([r, 17]))
+            for r in range(AUC_REPEATS)
+        ]
+    )
 
 
 def _labels(scores: np.ndarray, n: int) -> np.ndarray:
@@ -343,8 +355,17 @@ def candidate_result(
         float(np.dot(weights, [closure_auc[r][i] for r in rungs])) if rungs else 0.0
         for i in range(len(sets))
     ]
-    return CandidateResult(name, stage, tuple(strengths), mmd2, closure, score,
-                           closure_auc=closure_auc, neutral=neutral, scores_oof=oof)  # fmt: skip
+    return CandidateResult(
+        name,
+        stage,
+        tuple(strengths),
+        mmd2,
+        closure,
+        score,
+        closure_auc=closure_auc,
+        neutral=neutral,
+        scores_oof=oof,
+    )
 
 
 def _mmd2_floor(gap: Gap) -> float:

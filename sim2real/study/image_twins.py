@@ -66,16 +66,18 @@ def _defocus(clip: np.ndarray, radius: float) -> np.ndarray:
         return clip.astype(np.float64)
     h, w = clip.shape[1:3]
     pad = math.ceil(radius) + 1
-    padded = np.pad(clip.astype(np.float64), ((0, 0), (pad, pad), (pad, pad), (0, 0)),
-                    mode="reflect")  # fmt: skip
+    padded = np.pad(
+        clip.astype(np.float64), ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="reflect"
+    )
     ph, pw = padded.shape[1:3]
     kernel = hexagon_kernel(radius, 2 * pad + 1)
     spread = np.zeros((ph, pw))
     spread[: kernel.shape[0], : kernel.shape[1]] = kernel
     spread = np.roll(spread, (-pad, -pad), axis=(0, 1))  # centre the PSF at the origin
     transfer = np.fft.rfft2(spread)
-    blurred = np.fft.irfft2(np.fft.rfft2(padded, axes=(1, 2)) * transfer[None, :, :, None],
-                            s=(ph, pw), axes=(1, 2))  # fmt: skip
+    blurred = np.fft.irfft2(
+        np.fft.rfft2(padded, axes=(1, 2)) * transfer[None, :, :, None], s=(ph, pw), axes=(1, 2)
+    )
     return blurred[:, pad : pad + h, pad : pad + w]
 
 
@@ -89,8 +91,9 @@ def _vignetting(frames: np.ndarray, strength: float) -> np.ndarray:
     return frames * gain[None, :, :, None]
 
 
-def _sensor_noise(frames: np.ndarray, rng: np.random.Generator, read_sigma: float,
-                  shot_gain: float) -> np.ndarray:  # fmt: skip
+def _sensor_noise(
+    frames: np.ndarray, rng: np.random.Generator, read_sigma: float, shot_gain: float
+) -> np.ndarray:
     level = np.clip(frames, 0.0, 255.0)
     electrons = rng.poisson(level / shot_gain) if shot_gain > 0 else level
     return electrons * shot_gain + rng.normal(0.0, read_sigma, size=frames.shape)
@@ -118,8 +121,9 @@ def _jpeg(clip: np.ndarray, quality: int) -> np.ndarray:
     out = np.empty_like(clip)
     for k, frame in enumerate(clip):
         buffer = io.BytesIO()
-        Image.fromarray(frame).save(buffer, format="JPEG", quality=int(quality), subsampling=2,
-                                    optimize=True)  # fmt: skip
+        Image.fromarray(frame).save(
+            buffer, format="JPEG", quality=int(quality), subsampling=2, optimize=True
+        )
         out[k] = np.asarray(Image.open(io.BytesIO(buffer.getvalue())).convert("RGB"))
     return out
 
@@ -128,8 +132,9 @@ def _quantised(frames: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(frames), 0, 255).astype(np.uint8)
 
 
-def apply_image_twins(clip: np.ndarray, effects: VisualEffects,
-                      rng: np.random.Generator) -> np.ndarray:  # fmt: skip
+def apply_image_twins(
+    clip: np.ndarray, effects: VisualEffects, rng: np.random.Generator
+) -> np.ndarray:
     """Apply the enabled twinned effects of ``effects`` to ``clip`` (uint8 (K, H, W, 3)).
 
     In the renderer's camera order (defocus, vignetting, noise, white balance, compression),

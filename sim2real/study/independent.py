@@ -515,9 +515,16 @@ def _waviness(scene: EngineScene, rng: np.random.Generator, rest: np.ndarray) ->
 
 
 def _rollout(
-    mujoco, model, data, scene: EngineScene, level: int, seed_key: list[int], *, fps: float,
+    mujoco,
+    model,
+    data,
+    scene: EngineScene,
+    level: int,
+    seed_key: list[int],
+    *,
+    fps: float,
     frames: int,
-) -> Iterator[int]:  # fmt: skip
+) -> Iterator[int]:
     """Settle, start the fan and step; yields each written frame's index (0 = first written).
 
     ``data`` holds that frame's state at each yield; the wind is :func:`_video_wind`'s.
@@ -574,9 +581,14 @@ def _video_key(seed: int, fabric: int, level: int) -> list[int]:
 
 
 def simulate_positions(
-    fabric: EngineFabric, level: int, *, seed: int = 0, fps: float = TRAINING_FPS,
-    frames: int = CLIPS_PER_VIDEO * CLIP_LEN, scene: EngineScene | None = None,
-) -> np.ndarray:  # fmt: skip
+    fabric: EngineFabric,
+    level: int,
+    *,
+    seed: int = 0,
+    fps: float = TRAINING_FPS,
+    frames: int = CLIPS_PER_VIDEO * CLIP_LEN,
+    scene: EngineScene | None = None,
+) -> np.ndarray:
     """Vertex positions [m] of the written frames of one video, shape (K, V, 3) (no render)."""
     mujoco = import_mujoco(render=False)
     scene = scene or EngineScene()
@@ -642,8 +654,13 @@ def _choose_codec(requested: str, folder: Path, fps: float, size: int) -> dict:
     import cv2
 
     if requested == "png":
-        return {"requested": "png", "used": "png", "fourcc": None, "container": "PNG frames",
-                "note": "one folder of lossless PNG frames per video"}  # fmt: skip
+        return {
+            "requested": "png",
+            "used": "png",
+            "fourcc": None,
+            "container": "PNG frames",
+            "note": "one folder of lossless PNG frames per video",
+        }
     tried = []
     for fourcc in _CODEC_FALLBACKS[requested]:
         writer, path = _open_writer(cv2, folder / ".codec-probe", fourcc, fps, size)
@@ -653,11 +670,19 @@ def _choose_codec(requested: str, folder: Path, fps: float, size: int) -> dict:
             readable = path.is_file() and path.stat().st_size > 0
             path.unlink(missing_ok=True)
             if readable:
-                note = (f"{requested} asked for; {', '.join(tried)} not available in this "
-                        f"OpenCV build ({cv2.__version__}), {fourcc} used" if tried
-                        else f"{fourcc} as asked")  # fmt: skip
-                return {"requested": requested, "used": fourcc, "fourcc": fourcc,
-                        "container": _VIDEO_SUFFIXES[fourcc].lstrip("."), "note": note}  # fmt: skip
+                note = (
+                    f"{requested} asked for; {', '.join(tried)} not available in this "
+                    f"OpenCV build ({cv2.__version__}), {fourcc} used"
+                    if tried
+                    else f"{fourcc} as asked"
+                )
+                return {
+                    "requested": requested,
+                    "used": fourcc,
+                    "fourcc": fourcc,
+                    "container": _VIDEO_SUFFIXES[fourcc].lstrip("."),
+                    "note": note,
+                }
         tried.append(fourcc)
     raise InputError(
         f"--codec {requested}: this OpenCV build ({cv2.__version__}) encodes none of "
@@ -674,9 +699,20 @@ def _digest(paths: list[Path]) -> str:
 
 
 def _record_video(
-    mujoco, cv2, model, renderer, scene: EngineScene, fabric: EngineFabric, level: int,
-    seed: int, *, fps: float, frames: int, stem: Path, codec: dict,
-) -> dict:  # fmt: skip
+    mujoco,
+    cv2,
+    model,
+    renderer,
+    scene: EngineScene,
+    fabric: EngineFabric,
+    level: int,
+    seed: int,
+    *,
+    fps: float,
+    frames: int,
+    stem: Path,
+    codec: dict,
+) -> dict:
     """Simulate and render one video into ``stem`` (+ suffix); returns its ground truth."""
     data = mujoco.MjData(model)
     key = _video_key(seed, fabric.index, level)
@@ -736,30 +772,30 @@ def _differences(scene: EngineScene, codec: dict, fps: float) -> dict:
         "engine": {
             "ours": "simulator.cloth: batched backward Euler, Newton + CG (torch)",
             "here": "MuJoCo flexcomp (dim 2), integrator 'discrete', solver Newton, "
-                    f"{scene.vert_per_side} x {scene.vert_per_side} vertices",
+            f"{scene.vert_per_side} x {scene.vert_per_side} vertices",
         },
         "material_law": {
             "ours": "Wang et al. 2011 anisotropic strain-stiffening membrane (k0..k3 rows) and "
-                    "measured direction/curvature-dependent dihedral bending",
+            "measured direction/curvature-dependent dihedral bending",
             "here": "isotropic Saint Venant-Kirchhoff shell (elastic2d='both'): E t = "
-                    f"stretch_stiffness, Poisson {scene.poisson}, hinge bending D = E t^3 / "
-                    "(12 (1 - nu^2)) = bend_stiffness (sim2real.study.mujoco_flex mapping)",
+            f"stretch_stiffness, Poisson {scene.poisson}, hinge bending D = E t^3 / "
+            "(12 (1 - nu^2)) = bend_stiffness (sim2real.study.mujoco_flex mapping)",
         },
         "wind_model": {
             "ours": "normal pressure drag (C_d 1) of each vertex's area-weighted normal "
-                    "(a third of its triangles) on the relative air velocity",
+            "(a third of its triangles) on the relative air velocity",
             "here": "MuJoCo global fluid model (inertia-box, rho 1.2 kg/m^3) on the vertex "
-                    "bodies: isotropic quadratic drag of each vertex's area share, blind to "
-                    "the cloth normal",
+            "bodies: isotropic quadratic drag of each vertex's area share, blind to "
+            "the cloth normal",
         },
         "wind": {
             "ours": "constant, 0.75 / 1.5 / 2.5 m/s along +y with +-15 deg yaw jitter, "
-                    "0.25 s smoothstep ramp after 1 s settling",
+            "0.25 s smoothstep ramp after 1 s settling",
             "here": f"a fan: mean {speeds} m/s, axis yaw uniform +-{scene.fan_yaw_deg:g} deg, "
-                    f"exponential spin-up tau {scene.fan_spinup:g} s after {scene.settle_time:g}"
-                    f" s settling; gusts: along-wind x (1 + {scene.gust_intensity:g} g_u), "
-                    f"cross-wind {scene.crosswind_intensity:g} x mean x g_v, g smooth unit-"
-                    f"variance noise (two first-order low-passes of {scene.gust_time:g} s)",
+            f"exponential spin-up tau {scene.fan_spinup:g} s after {scene.settle_time:g}"
+            f" s settling; gusts: along-wind x (1 + {scene.gust_intensity:g} g_u), "
+            f"cross-wind {scene.crosswind_intensity:g} x mean x g_v, g smooth unit-"
+            f"variance noise (two first-order low-passes of {scene.gust_time:g} s)",
         },
         "pinning": {
             "ours": "the two top corners",
@@ -767,17 +803,17 @@ def _differences(scene: EngineScene, codec: dict, fps: float) -> dict:
         },
         "mass_distribution": {
             "ours": "density x vertex area (a third of each adjacent triangle): edge and "
-                    "corner vertices lighter",
+            "corner vertices lighter",
             "here": "flexcomp: equal mass per vertex (density x area / vertices); the pinned "
-                    "vertices' share is lost",
+            "vertices' share is lost",
         },
         "initial_shape": {
             "ours": "flat plus uniform +-1 mm per-vertex out-of-plane noise, damped settle "
-                    "+ static solve",
+            "+ static solve",
             "here": f"smooth random waviness {scene.waviness * 1e3:g} mm RMS (4 plane waves, "
-                    f"0.15-0.5 m), damped settle (vertex damping mass / "
-                    f"{scene.settle_damping_time:g} s, dt {scene.settle_dt:.4g} s), "
-                    "damping then off",
+            f"0.15-0.5 m), damped settle (vertex damping mass / "
+            f"{scene.settle_damping_time:g} s, dt {scene.settle_dt:.4g} s), "
+            "damping then off",
         },
         "renderer": {
             "ours": "pyrender (render.renderer.ClothRenderer)",
@@ -786,36 +822,36 @@ def _differences(scene: EngineScene, codec: dict, fps: float) -> dict:
         "texture": {
             "ours": "procedural textures of render.textures (grid / colour / random)",
             "here": "MuJoCo builtin 2D texture (checker 50 %, flat 25 %, gradient 25 %) with "
-                    "random speckles, colours and repeats drawn per fabric",
+            "random speckles, colours and repeats drawn per fabric",
         },
         "backdrop": {
             "ours": "2D procedural backgrounds (render.backgrounds: gradient, room, shapes)",
             "here": "3D floor plane with a builtin checker (grey tints drawn per fabric) under "
-                    "a gradient skybox; the cloth casts a shadow on the floor",
+            "a gradient skybox; the cloth casts a shadow on the floor",
         },
         "lighting": {
             "ours": "render.lights.LightSpec: camera-frame key light + ambient",
             "here": "one world directional light with shadows (azimuth +-50 deg, elevation "
-                    "40-70 deg, diffuse 0.5-0.9) plus MuJoCo's headlight (ambient 0.15-0.35)",
+            "40-70 deg, diffuse 0.5-0.9) plus MuJoCo's headlight (ambient 0.15-0.35)",
         },
         "camera": {
             "ours": "CameraSpec.wind: pos (0.22, 1.66, 2.06), look at (-0.04, 0.20, 0.81), "
-                    "fovy 30 deg",
+            "fovy 30 deg",
             "here": f"pos {scene.camera_pos}, look at {scene.camera_look_at}, fovy "
-                    f"{scene.camera_fovy_deg:g} deg (mirrored azimuth)",
+            f"{scene.camera_fovy_deg:g} deg (mirrored azimuth)",
         },
         "codec": {"ours": "PNG frames (sealed sets) / uint8 shards", "here": codec["note"]},
         "frame_rate": {
             "ours": f"{TRAINING_FPS:g} fps",
             "here": f"{fps:g} fps, physics dt {scene.record_steps(fps)[1]:.5g} s "
-                    f"({scene.record_steps(fps)[0]} steps per frame)",
+            f"({scene.record_steps(fps)[0]} steps per frame)",
         },
         "lead_in": {
             "ours": "frame 0 = rest at the wind's start; 0.4 s dropped (sealed sets)",
             "here": f"frame 0 = rest at the fan's start; {scene.lead_in:g} s "
-                    f"({scene.lead_in_frames(fps)} frames) dropped",
+            f"({scene.lead_in_frames(fps)} frames) dropped",
         },
-    }  # fmt: skip
+    }
 
 
 def write_independent_set(
@@ -882,8 +918,13 @@ def write_independent_set(
     rows = ["video,stiffness,density,wind,fps,fabric,stretch_stiffness,bend_stiffness"]
     with staged_folder(out, replace=overwrite) as stage:
         chosen = _choose_codec(codec, stage, fps, size)
-        bar = tqdm(total=fabrics * len(levels), desc="independent engine", unit="video",
-                   smoothing=0.0, disable=not progress)  # fmt: skip
+        bar = tqdm(
+            total=fabrics * len(levels),
+            desc="independent engine",
+            unit="video",
+            smoothing=0.0,
+            disable=not progress,
+        )
         try:
             for f in range(fabrics):
                 fabric = draw_fabric(seed, f, ranges)
@@ -893,9 +934,19 @@ def write_independent_set(
                     for level in levels:
                         name = f"v{len(videos):03d}"
                         truth = _record_video(
-                            mujoco, cv2, model, renderer, scene, fabric, level, seed, fps=fps,
-                            frames=frames, stem=stage / name, codec=chosen,
-                        )  # fmt: skip
+                            mujoco,
+                            cv2,
+                            model,
+                            renderer,
+                            scene,
+                            fabric,
+                            level,
+                            seed,
+                            fps=fps,
+                            frames=frames,
+                            stem=stage / name,
+                            codec=chosen,
+                        )
                         truth["look"] = dataclasses.asdict(look)
                         videos.append(truth)
                         rows.append(
@@ -909,8 +960,15 @@ def write_independent_set(
         finally:
             bar.close()
         (stage / "labels.csv").write_text("\n".join(rows) + "\n")
-    arguments = {"fabrics": fabrics, "winds": winds, "seed": seed, "size": size,
-                 "frames": frames, "fps": fps, "codec": codec}  # fmt: skip
+    arguments = {
+        "fabrics": fabrics,
+        "winds": winds,
+        "seed": seed,
+        "size": size,
+        "frames": frames,
+        "fps": fps,
+        "codec": codec,
+    }
     engine = {
         "engine": "mujoco",
         "mujoco_version": mujoco.__version__,
@@ -922,7 +980,7 @@ def write_independent_set(
         "lead_in_frames": scene.lead_in_frames(fps),
         "labels": {
             "stiffness": "bend multiplier: bend_stiffness / mean bending of camel-ponte-roma "
-                         f"({ranges['basis_bend'][0]:.6g} N·m), as the sealed sets' stiffness",
+            f"({ranges['basis_bend'][0]:.6g} N·m), as the sealed sets' stiffness",
             "density": "areal density [kg/m²]",
             "stretch_stiffness": "flex membrane E t [N/m]",
             "bend_stiffness": "flex hinge bending D [N·m]",
@@ -930,7 +988,7 @@ def write_independent_set(
         },
         "fabric_draw": {
             "rule": "log-uniform, independently per quantity, over the ten measured fabrics' "
-                    "range; fabric i from (seed, i) alone",
+            "range; fabric i from (seed, i) alone",
             "ranges": {k: list(v) for k, v in ranges.items() if k != "basis_bend"},
         },
         "differences": _differences(scene, chosen, fps),
@@ -952,25 +1010,36 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--winds", default="3", help="wind levels per fabric, 1-3 (default 3)")
     parser.add_argument("--seed", default="0", help="decides every draw (default 0)")
     parser.add_argument("--size", default="112", help="square frame side [px] (default 112)")
-    parser.add_argument("--frames", default=None,
-                        help="frames per video (default: 4 clips of 10 at 15 fps: 40)")  # fmt: skip
+    parser.add_argument(
+        "--frames", default=None, help="frames per video (default: 4 clips of 10 at 15 fps: 40)"
+    )
     parser.add_argument("--fps", default="15", help="frame rate (default 15)")
-    parser.add_argument("--codec", default="h264", help=f"one of {', '.join(CODECS)} "
-                        "(h264 falls back to mp4v, then MJPG; default h264)")  # fmt: skip
+    parser.add_argument(
+        "--codec",
+        default="h264",
+        help=f"one of {', '.join(CODECS)} (h264 falls back to mp4v, then MJPG; default h264)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     fps = check_float(args.fps, "--fps", 1.0, 240.0)
     engine = write_independent_set(
-        args.out, fabrics=check_int(args.fabrics, "--fabrics", 1, 1000),
-        winds=check_int(args.winds, "--winds", 1, 3), seed=check_int(args.seed, "--seed", 0),
+        args.out,
+        fabrics=check_int(args.fabrics, "--fabrics", 1, 1000),
+        winds=check_int(args.winds, "--winds", 1, 3),
+        seed=check_int(args.seed, "--seed", 0),
         size=check_int(args.size, "--size", 16, 1024),
         frames=None if args.frames is None else check_int(args.frames, "--frames", 1),
-        fps=fps, codec=args.codec, overwrite=args.overwrite, progress=not args.no_progress,
-    )  # fmt: skip
+        fps=fps,
+        codec=args.codec,
+        overwrite=args.overwrite,
+        progress=not args.no_progress,
+    )
     codec, frames = engine["codec"]["used"], engine["frames_per_video"]
-    print(f"independent set: {args.out} ({len(engine['videos'])} videos, codec {codec}, "
-          f"{frames} frames at {fps:g} fps)")  # fmt: skip
+    print(
+        f"independent set: {args.out} ({len(engine['videos'])} videos, codec {codec}, "
+        f"{frames} frames at {fps:g} fps)"
+    )
     print(f"engine: {Path(args.out).with_name(Path(args.out).name + '.engine.json')}")
 
 

@@ -64,8 +64,9 @@ def _truth_factors(result: Diagnosis, answer: dict, spread: int) -> list[Factor]
         if sealed is None or isinstance(sealed, str) or not scored:
             options = (sealed,)
         else:
-            picked = {scored[round(v)] for v in np.linspace(0, len(scored) - 1,
-                                                              min(spread, len(scored)))}
+            picked = {
+                scored[round(v)] for v in np.linspace(0, len(scored) - 1, min(spread, len(scored)))
+            }
             options = tuple(sorted(picked | {sealed}))
         factors.append(Factor(name, effect["stage"], options, start=sealed))
     return factors
@@ -99,11 +100,15 @@ def truth_attribution(result: Diagnosis, answer: dict, *, n_jobs: int = 1) -> di
     for name, share in shapley.items():
         shares[stages[name]] = shares.get(stages[name], 0.0) + share
     return {
-        "closure": value.closure, "closure_at_sealed": at_sealed.closure,
-        "strengths": dict(truth), "reset": reset, "shapley": shapley,
-        "matter": sorted(n for n, _ in kept), "stage_shares": shares,
+        "closure": value.closure,
+        "closure_at_sealed": at_sealed.closure,
+        "strengths": dict(truth),
+        "reset": reset,
+        "shapley": shapley,
+        "matter": sorted(n for n, _ in kept),
+        "stage_shares": shares,
         "closure_of_those_that_matter": full.closure,
-    }  # fmt: skip
+    }
 
 
 def _f1(named: set[str], truth: set[str]) -> tuple[float, float, float]:

@@ -149,8 +149,18 @@ def barrel_image(image: np.ndarray, strength: float, interpolation: int = cv2.IN
     return cv2.remap(image, map_x, map_y, interpolation, borderMode=cv2.BORDER_REFLECT_101)
 
 
-def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_seed: list,
-                        effects: list[dict], image_twins: bool = False) -> np.ndarray:  # fmt: skip
+def render_sealed_video(
+    spec,
+    seq,
+    b: int,
+    plan,
+    start: int,
+    stop: int,
+    *,
+    rng_seed: list,
+    effects: list[dict],
+    image_twins: bool = False,
+) -> np.ndarray:
     """Frames ``[start, stop)`` of instance ``b`` of ``seq`` with out-of-library image effects.
 
     Rendered as ``spec`` renders them (:func:`datasets.generation.render_frames`; ``rng_seed``
@@ -176,17 +186,25 @@ def render_sealed_video(spec, seq, b: int, plan, start: int, stop: int, *, rng_s
             for end in (slice(0, 3), slice(3, 6)):
                 capsules[..., end] = barrel_points(capsules[..., end], spec.camera, strength)
         video = dataclasses.replace(
-            video, pos=barrel_points(video.pos.astype(np.float64), spec.camera, strength),
+            video,
+            pos=barrel_points(video.pos.astype(np.float64), spec.camera, strength),
             capsules=capsules,
-        )  # fmt: skip
+        )
         background = barrel_image(background, strength)
     rendered = spec
     if image_twins:
         rendered = dataclasses.replace(spec, visual=without_twinned(spec.visual))
     frames, _ = render_frames(
-        rendered, video, 0, plan, start, stop, rng=np.random.default_rng(rng_seed),
-        capsules=video.capsules, look=(texture, background),
-    )  # fmt: skip
+        rendered,
+        video,
+        0,
+        plan,
+        start,
+        stop,
+        rng=np.random.default_rng(rng_seed),
+        capsules=video.capsules,
+        look=(texture, background),
+    )
     if image_twins:
         frames = apply_image_twins(frames, spec.visual, np.random.default_rng([*rng_seed, 3]))
     if "exposure_flicker" in strengths:

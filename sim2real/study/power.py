@@ -66,12 +66,17 @@ def pooled_detection(
         gaps = rung_gaps(pooled, real, n_perm=n_perm, n_boot=1, n_floor=0, seed=seed)
         location = localise(gaps, alpha=alpha)
         rungs = [n for n, g in gaps.items() if min(g.p_value, g.p_c2st) < alpha]
-        out.append({
-            "draws": count, "sims": len(set(pooled.groups.tolist())),
-            "gap_p": location["gap_p"], "detected": location["gap_p"] < alpha,
-            "rungs": rungs, "pixel_or_motion": [n for n in rungs if n in hand_rung_names()],
-            "p": {n: [g.p_value, g.p_c2st] for n, g in gaps.items()},
-        })  # fmt: skip
+        out.append(
+            {
+                "draws": count,
+                "sims": len(set(pooled.groups.tolist())),
+                "gap_p": location["gap_p"],
+                "detected": location["gap_p"] < alpha,
+                "rungs": rungs,
+                "pixel_or_motion": [n for n in rungs if n in hand_rung_names()],
+                "p": {n: [g.p_value, g.p_c2st] for n, g in gaps.items()},
+            }
+        )
     return out
 
 
@@ -119,11 +124,15 @@ def _table(rows: list[dict]) -> str:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m sim2real.study.power",
-                                     description=__doc__.split("\n")[0])  # fmt: skip
+    parser = argparse.ArgumentParser(
+        prog="python -m sim2real.study.power", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("reports", nargs="+", help="report.json files of diagnoses")
-    parser.add_argument("--draws", default="2,4,6",
-                        help="nominal draws pooled, comma-separated (2 = S and S', as diagnosed)")
+    parser.add_argument(
+        "--draws",
+        default="2,4,6",
+        help="nominal draws pooled, comma-separated (2 = S and S', as diagnosed)",
+    )
     parser.add_argument("--answers", help="a validation's answers/ folder (labels the rows)")
     parser.add_argument("--alpha", type=float, default=0.05)
     parser.add_argument("--n-jobs", type=int, default=1)
@@ -150,14 +159,25 @@ def main(argv: list[str] | None = None) -> None:
         name = Path(path).parent.name
         by_count = _study(report, counts, args.n_jobs, args.alpha, progress=True)
         rows.append({"set": name, "truth": _truth(answers, name), "by_count": by_count})
-        print(f"{name}: " + ", ".join(f"{c['sims']} sims p {c['gap_p']:.4f}" for c in by_count),
-              flush=True)  # fmt: skip
+        print(
+            f"{name}: " + ", ".join(f"{c['sims']} sims p {c['gap_p']:.4f}" for c in by_count),
+            flush=True,
+        )
     summary = {"alpha": args.alpha, "draws": counts, "rows": rows}
     for name, text in (("power.json", json.dumps(summary, indent=1)), ("power.md", _table(rows))):
         atomic_write_bytes(out / name, text.encode())
-    print(json.dumps({"sets": len(rows), "draws": counts, "detected": {
-        str(c): int(sum(r["by_count"][i]["detected"] for r in rows)) for i, c in enumerate(counts)
-    }}))  # fmt: skip
+    print(
+        json.dumps(
+            {
+                "sets": len(rows),
+                "draws": counts,
+                "detected": {
+                    str(c): int(sum(r["by_count"][i]["detected"] for r in rows))
+                    for i, c in enumerate(counts)
+                },
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -49,22 +49,26 @@ def decide_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE
     order = sorted(report.candidates, key=lambda n: stored.index(n) if n in stored else 0)
     results = [CandidateResult.from_json(report.candidates[n]) for n in order]
     null = CandidateResult.from_json(report.null) if report.null else None
-    ranking = rank_candidates(
-        results, null, report.ranking.kernel_rungs, min_closure=min_closure
-    )
+    ranking = rank_candidates(results, null, report.ranking.kernel_rungs, min_closure=min_closure)
     alone = {r.name: r.best_score for r in results}
     ranking = {**explained_together(ranking, report.shapley, alone), "replayed": True}
     top = ranking["top"]
     stacked = report.stacked
-    if (ranking["explained"] or top is None or ranking["neutral_in_interval"]
-            or alone[top] < STACK_MIN_LEADER):  # fmt: skip
+    if (
+        ranking["explained"]
+        or top is None
+        or ranking["neutral_in_interval"]
+        or alone[top] < STACK_MIN_LEADER
+    ):
         pass
     elif stacked is None or stacked["leader"] != top:
         ranking["replayed"] = False
     elif stacked["best"] is not None and explains_together(
-        stacked["score"], stacked["kernel_closure"], ranking["threshold"],
+        stacked["score"],
+        stacked["kernel_closure"],
+        ranking["threshold"],
         [alone[top], alone[stacked["best"]]],
-    ):  # fmt: skip
+    ):
         ranking = explained_by_stack(ranking, stacked)
     return Ranking.from_json(json_safe(ranking))
 

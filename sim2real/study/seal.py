@@ -139,24 +139,33 @@ def draw_answer(
         pass
     elif kind == "multi":
         for candidate in _multi_effects(library, rng):
-            effects.append({
-                "name": candidate.name, "stage": candidate.stage,
-                "strength": _draw_strength(candidate, rng), "library": True,
-            })  # fmt: skip
+            effects.append(
+                {
+                    "name": candidate.name,
+                    "stage": candidate.stage,
+                    "strength": _draw_strength(candidate, rng),
+                    "library": True,
+                }
+            )
     else:
         count = 1 if kind == "single" else 2
         picked = rng.choice(len(names), size=count, replace=False)
         if effect is not None:
             if kind != "single" or effect not in library:
-                raise ValueError(f"effect: {effect!r} must be a library effect of a single set; "
-                                 f"allowed: {names}")  # fmt: skip
+                raise ValueError(
+                    f"effect: {effect!r} must be a library effect of a single set; allowed: {names}"
+                )
             picked = [names.index(effect)]
         for i in sorted(int(p) for p in picked):
             candidate = library[names[i]]
-            effects.append({
-                "name": candidate.name, "stage": candidate.stage,
-                "strength": _draw_strength(candidate, rng), "library": True,
-            })  # fmt: skip
+            effects.append(
+                {
+                    "name": candidate.name,
+                    "stage": candidate.stage,
+                    "strength": _draw_strength(candidate, rng),
+                    "library": True,
+                }
+            )
     return {"seed": seed, "kind": kind, "effects": effects}
 
 
@@ -236,8 +245,9 @@ def seal_set(
     if image_effects is None:
         image_effects = "twins" if answer["kind"] in ("multi", "twin") else "library"
     if image_effects not in IMAGE_EFFECT_SOURCES:
-        raise ValueError(f"image_effects must be one of {IMAGE_EFFECT_SOURCES}, "
-                         f"got {image_effects!r}")  # fmt: skip
+        raise ValueError(
+            f"image_effects must be one of {IMAGE_EFFECT_SOURCES}, got {image_effects!r}"
+        )
     rng = np.random.default_rng([seed, _SEAL_STREAM, 1])
     spec, nuisance = _sealed_spec(base, answer, rng)
     p = np.exp(rng.uniform(*np.log([min(STRETCH_MULTIPLIERS), max(STRETCH_MULTIPLIERS)]), videos))
@@ -248,14 +258,17 @@ def seal_set(
     density_factor = rng.uniform(low, high, videos)
     basis = load_wang_material(BASIS_MATERIAL)
     sim_seeds = [int(s) for s in rng.integers(1, 2**31 - 1, size=videos)]
-    winds = [i % len(spec.scenario.wind_speeds) if hasattr(spec.scenario, "wind_speeds") else 0
-             for i in range(videos)]  # fmt: skip
+    winds = [
+        i % len(spec.scenario.wind_speeds) if hasattr(spec.scenario, "wind_speeds") else 0
+        for i in range(videos)
+    ]
     # A slower camera (frame_rate) records longer, as a real one filming the same clips does.
     frame_count = dataclasses.replace(
-        spec, preset=dataclasses.replace(
+        spec,
+        preset=dataclasses.replace(
             spec.preset, clips_per_sim=clips_per_video, frames_per_clip=clip_len
-        )
-    ).frames_per_sim  # fmt: skip
+        ),
+    ).frames_per_sim
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
@@ -264,26 +277,38 @@ def seal_set(
     for first in range(0, videos, batch):
         idx = list(range(first, min(videos, first + batch)))
         material = ClothMaterial.from_wang(
-            basis, stretch_mult=p[idx].tolist(), bend_mult=k[idx].tolist(),
+            basis,
+            stretch_mult=p[idx].tolist(),
+            bend_mult=k[idx].tolist(),
             dtype=spec.sim.torch_dtype(),
-        )  # fmt: skip
+        )
         material = dataclasses.replace(
             material, density=material.density * material.density.new_tensor(density_factor[idx])
         )
         seq = simulate(
-            spec.scenario, material, seeds=[sim_seeds[i] for i in idx],
-            wind_levels=[winds[i] for i in idx], fps=spec.preset.fps,
-            record_time=(frame_count - 1) / spec.preset.fps, effects=spec.physics,
+            spec.scenario,
+            material,
+            seeds=[sim_seeds[i] for i in idx],
+            wind_levels=[winds[i] for i in idx],
+            fps=spec.preset.fps,
+            record_time=(frame_count - 1) / spec.preset.fps,
+            effects=spec.physics,
             settings=spec.sim,
-        )  # fmt: skip
+        )
         for b, i in enumerate(idx):
             plan = SimulationPlan(-1, i, sim_seeds[i], winds[i], "test")
             # as the spec renders it, plus any out-of-library image effect (open_set)
             frames = render_sealed_video(
-                spec, seq, b, plan, spec.lead_in_frames, frame_count,
-                rng_seed=[sim_seeds[i], _SEAL_STREAM, 2], effects=answer["effects"],
+                spec,
+                seq,
+                b,
+                plan,
+                spec.lead_in_frames,
+                frame_count,
+                rng_seed=[sim_seeds[i], _SEAL_STREAM, 2],
+                effects=answer["effects"],
                 image_twins=image_effects == "twins",
-            )  # fmt: skip
+            )
             _write_frames(partial / f"v{i:03d}", frames)
             density = basis.density * density_factor[i]
             rows.append(f"v{i:03d},{k[i]:.6g},{density:.6g},W{winds[i] + 1},{spec.preset.fps:g}")
@@ -291,8 +316,14 @@ def seal_set(
     if out.exists():
         shutil.rmtree(out)
     partial.rename(out)
-    answer = {**answer, "nuisance": nuisance, "videos": videos, "base_spec_key": base.key(),
-              "sealed_spec_key": spec.key(), "image_effects": image_effects}  # fmt: skip
+    answer = {
+        **answer,
+        "nuisance": nuisance,
+        "videos": videos,
+        "base_spec_key": base.key(),
+        "sealed_spec_key": spec.key(),
+        "image_effects": image_effects,
+    }
     text = json.dumps(answer, indent=2, sort_keys=True) + "\n"
     answer_path.write_text(text)
     return answer_path, hashlib.sha256(text.encode()).hexdigest()
@@ -317,9 +348,12 @@ def _base_spec(data_dir: str | None, level: int) -> DatasetSpec:
 
     settings = SimSettings(max_dt=0.00834, settle_max_dt=0.0167, dtype="float32")
     return DatasetSpec(
-        motion="wind", scenario=ScenarioWind(resolution_level=level), preset=PRESETS["full"],
-        lead_in=0.4, sim=settings,
-    )  # fmt: skip
+        motion="wind",
+        scenario=ScenarioWind(resolution_level=level),
+        preset=PRESETS["full"],
+        lead_in=0.4,
+        sim=settings,
+    )
 
 
 @report_user_errors
@@ -337,20 +371,35 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--kind", choices=SEAL_KINDS, help="default: drawn from the seed")
     parser.add_argument("--answer", help="answer file (default: <out>.answer.json)")
     parser.add_argument("--overwrite", action="store_true")
-    parser.add_argument("--image-effects", choices=IMAGE_EFFECT_SOURCES,
-                        help="who applies the library's image effects (default: twins for "
-                        "multi and twin sets, else library)")  # fmt: skip
-    parser.add_argument("--density-range", type=float, nargs=2, default=(0.8, 1.25),
-                        metavar=("LOW", "HIGH"), help="areal density factors drawn per video")
+    parser.add_argument(
+        "--image-effects",
+        choices=IMAGE_EFFECT_SOURCES,
+        help="who applies the library's image effects (default: twins for "
+        "multi and twin sets, else library)",
+    )
+    parser.add_argument(
+        "--density-range",
+        type=float,
+        nargs=2,
+        default=(0.8, 1.25),
+        metavar=("LOW", "HIGH"),
+        help="areal density factors drawn per video",
+    )
     args = parser.parse_args(argv)
     check_output_dir(args.out, "--out")
     try:
         path, digest = seal_set(
-            args.out, base=_base_spec(args.data_dir, args.level), seed=args.seed,
-            videos=args.videos, clips_per_video=args.clips_per_video, kind=args.kind,
-            answer_path=args.answer, overwrite=args.overwrite,
-            density_range=tuple(args.density_range), image_effects=args.image_effects,
-        )  # fmt: skip
+            args.out,
+            base=_base_spec(args.data_dir, args.level),
+            seed=args.seed,
+            videos=args.videos,
+            clips_per_video=args.clips_per_video,
+            kind=args.kind,
+            answer_path=args.answer,
+            overwrite=args.overwrite,
+            density_range=tuple(args.density_range),
+            image_effects=args.image_effects,
+        )
     except ValueError as err:  # the sealing's own checks name the field
         raise InputError(str(err)) from None
     print(f"sealed set: {args.out}")

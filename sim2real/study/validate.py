@@ -49,14 +49,24 @@ from .rescore import decided_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
 __all__ = [
-    "budget_names", "load_budget", "ranking_stability", "ranks", "score_set", "set_plan",
-    "stability_positions", "stability_scores", "summarise",
-]  # fmt: skip
+    "budget_names",
+    "load_budget",
+    "ranking_stability",
+    "ranks",
+    "score_set",
+    "set_plan",
+    "stability_positions",
+    "stability_scores",
+    "summarise",
+]
 
 TARGETS = {
-    "stage": 0.90, "top1": 0.80, "top3": 0.95, "gap_closed": 0.50,
+    "stage": 0.90,
+    "top1": 0.80,
+    "top3": 0.95,
+    "gap_closed": 0.50,
     "open_false_attribution": 0.10,
-}  # fmt: skip
+}
 """The issue's targets (false attribution: at most)."""
 
 
@@ -91,11 +101,12 @@ def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) 
     ranking = result.ranking
     order = ranking.ranking
     row = {
-        "seed": answer["seed"], "kind": answer["kind"],
+        "seed": answer["seed"],
+        "kind": answer["kind"],
         "truth": [f"{e['name']}={e['strength']}" for e in answer["effects"]],
         "predicted": ranking.top if ranking.explained else "unexplained",
         "stage_correct": bool(_predicted_stages(result) & stages),
-    }  # fmt: skip
+    }
     row["detected"] = bool(result.scored_rungs)
     row["budget"] = result.inputs.budget
     if answer["kind"] == "open":
@@ -107,8 +118,9 @@ def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) 
     if found is not None:  # reports written before the analysis existed have none
         row["truth_detectable"] = any(
             detectable_at(found[e["name"]], e["strength"])
-            for e in answer["effects"] if e["library"] and e["name"] in found
-        )  # fmt: skip
+            for e in answer["effects"]
+            if e["library"] and e["name"] in found
+        )
     ranked = ranks(result)
     row["top1"] = bool(ranking.explained and ranking.top in truth)
     row["top3"] = ranked and bool(set(order[:3]) & set(truth))
@@ -190,8 +202,9 @@ def summarise(rows: list[dict]) -> dict:
     out["twin_false_attribution"], out["twin_n"] = rate("false_attribution", ("twin",))
     for key in ("factor_f1", "factor_f1_matter", "factor_precision", "factor_recall"):
         out[key], out[f"{key}_n"] = rate(key, ("multi",))
-    errors = [r["stage_share_error_pts"] for r in rows
-              if r.get("stage_share_error_pts") is not None]  # fmt: skip
+    errors = [
+        r["stage_share_error_pts"] for r in rows if r.get("stage_share_error_pts") is not None
+    ]
     out["stage_share_error_pts_median"] = float(np.median(errors)) if errors else None
     out["stage_share_error_pts_max"] = float(np.max(errors)) if errors else None
     for key in ("kendall_tau", "weighted_tau", "kendall_tau_all"):
@@ -274,7 +287,8 @@ def _table(summary: dict, rows: list[dict]) -> str:
     budgets = summary.get("budgets")
     lines = [
         *([f"Diagnosed at budget {', '.join(budgets)} (configs/budget/).", ""] if budgets else []),
-        "| measure | target | measured | sets |", "|---|---|---|---|",
+        "| measure | target | measured | sets |",
+        "|---|---|---|---|",
         f"| stage correct | >= 90 % | {pct(summary['stage_correct'])} | "
         f"{summary['stage_correct_n']} |",
         f"| effect top-1 | >= 80 % | {pct(summary['top1'])} | {summary['top1_n']} |",
@@ -304,9 +318,10 @@ def _table(summary: dict, rows: list[dict]) -> str:
         f"{summary['top1_detected_n']} |",
         *_detectability_rows(summary, pct),
         *_multi_rows(summary, pct),
-        "", "| seed | kind | withheld | diagnosed | stage | top-3 | gap closed |",
+        "",
+        "| seed | kind | withheld | diagnosed | stage | top-3 | gap closed |",
         "|---|---|---|---|---|---|---|",
-    ]  # fmt: skip
+    ]
     for r in rows:
         closed = r.get("gap_closed")
         lines.append(
@@ -344,14 +359,16 @@ def _rescored_note(threshold: float, rows: list[dict]) -> str:
     """The header of a rescored table: what was decided again, and what could not be."""
     lines = [
         f"Decided again (ranking, cause and residual stage) from the stored closures at "
-        f"open-set threshold {threshold:g} (`--rescore`); the diagnoses were not rerun.", "",
-    ]  # fmt: skip
+        f"open-set threshold {threshold:g} (`--rescore`); the diagnoses were not rerun.",
+        "",
+    ]
     missing = [str(r["seed"]) for r in rows if r.get("replayed") is False]
     if missing:
         lines += [
             f"Sets {', '.join(missing)} now call for a stacked fit that their stored run did "
-            "not make; they count as unexplained here. Rerun them to know.", "",
-        ]  # fmt: skip
+            "not make; they count as unexplained here. Rerun them to know.",
+            "",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -448,8 +465,9 @@ def _diagnosed(out_dir: Path, common: dict) -> Diagnosis:
 @report_user_errors
 def main(argv: list[str] | None = None) -> None:
     """Command line (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m sim2real.study.validate",
-                                     description=__doc__.split("\n")[0])  # fmt: skip
+    parser = argparse.ArgumentParser(
+        prog="python -m sim2real.study.validate", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("--sets", type=int, required=True)
     parser.add_argument("--run", required=True, help="training run folder or checkpoint")
     parser.add_argument("--data-dir", help="the run's training dataset folder")
@@ -460,9 +478,13 @@ def main(argv: list[str] | None = None) -> None:
         help="a fixed plan, e.g. single:22,pair:6,open:4 (singles cycle through the library "
         "in name order, so 21 cover every effect of the default wind scene); default: each "
         "set's kind drawn from its seed. With a plan, --sets counts its sets: 0 means all of them",
-    )  # fmt: skip
-    parser.add_argument("--skip", type=int, default=0,
-                        help="leave out the plan's first SKIP sets (shard a plan over processes)")
+    )
+    parser.add_argument(
+        "--skip",
+        type=int,
+        default=0,
+        help="leave out the plan's first SKIP sets (shard a plan over processes)",
+    )
     parser.add_argument("--videos", type=int, default=90)
     parser.add_argument("--candidates", default="all", help="comma-separated names or stages")
     parser.add_argument("--mesh-cache", default="data/mesh_cache")
@@ -522,8 +544,13 @@ def main(argv: list[str] | None = None) -> None:
         raise InputError(
             f"--sets must be an integer >= 1 (0 means every set of a --kinds plan), got {args.sets}"
         )
-    for name, low in (("first_seed", 0), ("skip", 0), ("videos", 4), ("n_jobs", 1),
-                      ("stability", 0)):  # fmt: skip
+    for name, low in (
+        ("first_seed", 0),
+        ("skip", 0),
+        ("videos", 4),
+        ("n_jobs", 1),
+        ("stability", 0),
+    ):
         check_int(getattr(args, name), "--" + name.replace("_", "-"), low)
     args.finished_only = args.finished_only or args.rescore
     out = check_output_dir(args.out, "--out")
@@ -563,14 +590,26 @@ def main(argv: list[str] | None = None) -> None:
         sealed = (real / "labels.csv").is_file() and answer_path.is_file()
         if not sealed and not args.finished_only:
             answer = None if kind is None else draw_answer(seed, library, kind, effect)
-            seal_set(real, base=base, seed=seed, videos=args.videos, answer_path=answer_path,
-                     overwrite=True, answer=answer)  # fmt: skip
+            seal_set(
+                real,
+                base=base,
+                seed=seed,
+                videos=args.videos,
+                answer_path=answer_path,
+                overwrite=True,
+                answer=answer,
+            )
         common = {
-            "real_dir": real, "run": args.run, "data_dir": args.data_dir,
+            "real_dir": real,
+            "run": args.run,
+            "data_dir": args.data_dir,
             "cache_dir": Path(args.cache_dir) if args.cache_dir else out / "cache",
-            "mesh_cache": args.mesh_cache, "budget": budget,
-            "candidates": args.candidates.split(","), "n_jobs": args.n_jobs, "progress": False,
-        }  # fmt: skip
+            "mesh_cache": args.mesh_cache,
+            "budget": budget,
+            "candidates": args.candidates.split(","),
+            "n_jobs": args.n_jobs,
+            "progress": False,
+        }
         result = _diagnosed(out / "reports" / real.name, common)
         reruns = [result]
         if seed in rerun:
@@ -582,8 +621,11 @@ def main(argv: list[str] | None = None) -> None:
         if args.rescore:
             result = decided_again(result, min_closure=args.open_set_threshold)
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis
-        truth = (truth_attribution(result, answer, n_jobs=args.n_jobs)
-                 if answer["kind"] == "multi" else None)  # fmt: skip
+        truth = (
+            truth_attribution(result, answer, n_jobs=args.n_jobs)
+            if answer["kind"] == "multi"
+            else None
+        )
         row = score_set(result, answer, truth)
         if args.rescore:
             row["replayed"] = result.ranking.replayed

@@ -14,9 +14,14 @@ __all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength"]
 
 
 def strength(
-    default: float, of: str, low: float, high: float, *, integer: bool = False,
+    default: float,
+    of: str,
+    low: float,
+    high: float,
+    *,
+    integer: bool = False,
     neutral: float | None = None,
-):  # fmt: skip
+):
     """A dataclass field that is the strength of switch ``of``, plausible in [low, high].
 
     The metadata is what makes every switch of a registry a candidate of the sim-to-real
@@ -86,8 +91,6 @@ class PhysicsEffects:
     def from_dict(values: dict | None) -> PhysicsEffects:
         """Build from a (config) mapping; unknown keys raise, naming them and the allowed keys."""
         return switches_from_dict(PhysicsEffects, values, "effects")
-
-
 
 
 PHYSICS_EFFECT_NAMES: tuple[str, ...] = tuple(

@@ -67,11 +67,18 @@ def _checked(cfg: DictConfig) -> dict:
     if export is not None:
         check_output_dir(out_file.parent / f"frames_{export}", "export")
     return {
-        "threads": threads, "classes": classes, "seed": seed, "fps": fps,
-        "record_time": record_time, "export": export, "scenario": scenario,
-        "settings": settings, "effects": effects, "wind_level": wind_level,
+        "threads": threads,
+        "classes": classes,
+        "seed": seed,
+        "fps": fps,
+        "record_time": record_time,
+        "export": export,
+        "scenario": scenario,
+        "settings": settings,
+        "effects": effects,
+        "wind_level": wind_level,
         "out_file": out_file,
-    }  # fmt: skip
+    }
 
 
 def run(cfg: DictConfig):

@@ -40,27 +40,52 @@ __all__ = [
 ]
 
 JOINTS: tuple[str, ...] = (
-    "pelvis", "neck", "head",
-    "shoulder_r", "elbow_r", "wrist_r", "shoulder_l", "elbow_l", "wrist_l",
-    "hip_r", "knee_r", "ankle_r", "hip_l", "knee_l", "ankle_l",
-)  # fmt: skip
+    "pelvis",
+    "neck",
+    "head",
+    "shoulder_r",
+    "elbow_r",
+    "wrist_r",
+    "shoulder_l",
+    "elbow_l",
+    "wrist_l",
+    "hip_r",
+    "knee_r",
+    "ankle_r",
+    "hip_l",
+    "knee_l",
+    "ankle_l",
+)
 """The 15 joints of *thesis* Table 6.3 (pelvis is the root)."""
 
 JOINT_PARENTS: dict[str, str | None] = {
-    "pelvis": None, "neck": "pelvis", "head": "neck",
-    "shoulder_r": "pelvis", "elbow_r": "shoulder_r", "wrist_r": "elbow_r",
-    "shoulder_l": "pelvis", "elbow_l": "shoulder_l", "wrist_l": "elbow_l",
-    "hip_r": "pelvis", "knee_r": "hip_r", "ankle_r": "knee_r",
-    "hip_l": "pelvis", "knee_l": "hip_l", "ankle_l": "knee_l",
-}  # fmt: skip
+    "pelvis": None,
+    "neck": "pelvis",
+    "head": "neck",
+    "shoulder_r": "pelvis",
+    "elbow_r": "shoulder_r",
+    "wrist_r": "elbow_r",
+    "shoulder_l": "pelvis",
+    "elbow_l": "shoulder_l",
+    "wrist_l": "elbow_l",
+    "hip_r": "pelvis",
+    "knee_r": "hip_r",
+    "ankle_r": "knee_r",
+    "hip_l": "pelvis",
+    "knee_l": "hip_l",
+    "ankle_l": "knee_l",
+}
 
 POSE_LIMITS_DEG = 150.0
 """Largest absolute joint angle accepted [deg]."""
 
 
 SHAPE_RANGES: dict[str, tuple[float, float]] = {
-    "height": (1.45, 2.00), "chest": (0.75, 1.30), "waist": (0.58, 1.20), "hip": (0.78, 1.30),
-}  # fmt: skip
+    "height": (1.45, 2.00),
+    "chest": (0.75, 1.30),
+    "waist": (0.58, 1.20),
+    "hip": (0.78, 1.30),
+}
 """Accepted range of each shape parameter [m]."""
 
 
@@ -222,13 +247,15 @@ class Mannequin:
         waist_w, waist_d = _stadium_size(shape.waist, 0.72)
         hip_w, hip_d = _stadium_size(shape.hip, 0.70)
         top_w, top_d = 2 * shoulder_x, 0.62 * chest_d
-        keys = np.array([
-            [0.530 * h, hip_w, hip_d],
-            [0.630 * h, waist_w, waist_d],
-            [0.720 * h, chest_w, chest_d],
-            [0.790 * h, 0.92 * chest_w, 0.85 * chest_d],
-            [0.808 * h, top_w, top_d],
-        ])  # fmt: skip
+        keys = np.array(
+            [
+                [0.530 * h, hip_w, hip_d],
+                [0.630 * h, waist_w, waist_d],
+                [0.720 * h, chest_w, chest_d],
+                [0.790 * h, 0.92 * chest_w, 0.85 * chest_d],
+                [0.808 * h, top_w, top_d],
+            ]
+        )
         zs = np.array([0.530, 0.565, 0.600, 0.630, 0.660, 0.690, 0.720, 0.755, 0.790]) * h
         sections = np.stack(
             [zs, np.interp(zs, keys[:, 0], keys[:, 1]), np.interp(zs, keys[:, 0], keys[:, 2])], -1
@@ -237,21 +264,28 @@ class Mannequin:
         for i, (z, w, d) in enumerate(sections):
             half = max(w - d, 0.0) / 2
             prims.append(
-                _Primitive("pelvis", np.array([-half, 0, z]), np.array([half, 0, z]), d / 2,
-                           f"torso_{i}")
-            )  # fmt: skip
+                _Primitive(
+                    "pelvis", np.array([-half, 0, z]), np.array([half, 0, z]), d / 2, f"torso_{i}"
+                )
+            )
         # Shoulder yoke: from shoulder to shoulder, carries the t-shirt.
         yoke_r = 0.050 * s
         prims.append(
-            _Primitive("pelvis", rest[3] + [0.01, 0, 0], rest[6] - [0.01, 0, 0], yoke_r,
-                       "shoulders")
-        )  # fmt: skip
+            _Primitive(
+                "pelvis", rest[3] + [0.01, 0, 0], rest[6] - [0.01, 0, 0], yoke_r, "shoulders"
+            )
+        )
         j = {n: rest[i] for i, n in enumerate(JOINTS)}
         prims += [
             _Primitive("neck", j["neck"] - [0, 0, 0.03 * h], j["head"], 0.052 * s, "neck"),
-            _Primitive("head", j["head"] + [0, 0, 0.065 * h], j["head"] + [0, 0, 0.065 * h],
-                       0.098 * s, "head"),
-        ]  # fmt: skip
+            _Primitive(
+                "head",
+                j["head"] + [0, 0, 0.065 * h],
+                j["head"] + [0, 0, 0.065 * h],
+                0.098 * s,
+                "head",
+            ),
+        ]
         thigh_r = 0.56 * shape.hip / (2 * math.pi)
         for side in ("r", "l"):
             sh, el, wr = j[f"shoulder_{side}"], j[f"elbow_{side}"], j[f"wrist_{side}"]
@@ -263,12 +297,18 @@ class Mannequin:
                 _Primitive(f"elbow_{side}", el, wr, 0.037 * s, f"forearm_{side}"),
                 _Primitive(f"wrist_{side}", hand, hand, 0.045 * s, f"hand_{side}"),
                 _Primitive(f"hip_{side}", hip - [0, 0, 0.02 * h], mid, thigh_r, f"thigh_{side}"),
-                _Primitive(f"hip_{side}", mid, knee, 0.5 * (thigh_r + 0.052 * s),
-                           f"lower_thigh_{side}"),
+                _Primitive(
+                    f"hip_{side}", mid, knee, 0.5 * (thigh_r + 0.052 * s), f"lower_thigh_{side}"
+                ),
                 _Primitive(f"knee_{side}", knee, ankle, 0.050 * s, f"shin_{side}"),
-                _Primitive(f"ankle_{side}", ankle, ankle + np.array([0, -0.11 * h, -0.015 * h]),
-                           0.035 * s, f"foot_{side}"),
-            ]  # fmt: skip
+                _Primitive(
+                    f"ankle_{side}",
+                    ankle,
+                    ankle + np.array([0, -0.11 * h, -0.015 * h]),
+                    0.035 * s,
+                    f"foot_{side}",
+                ),
+            ]
         levels = {
             "waist": 0.630 * h,
             "hip": 0.530 * h,

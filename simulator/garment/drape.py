@@ -150,8 +150,13 @@ class DrapeSettings:
 
     def __post_init__(self):
         for name in (
-            "dt", "speed_tol", "friction", "seam_stiffness", "cg_rtol", "contact_thickness"
-        ):  # fmt: skip
+            "dt",
+            "speed_tol",
+            "friction",
+            "seam_stiffness",
+            "cg_rtol",
+            "contact_thickness",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise InputError(f"drape.{name} must be a finite number >= 0, got {value!r}")
@@ -169,9 +174,12 @@ class DrapeSettings:
     def newton(self) -> NewtonSettings:
         """The Newton / PCG settings of one step."""
         return NewtonSettings(
-            max_iters=self.newton_iters, tol_dx=1e-6, cg_rtol=self.cg_rtol,
-            cg_max_iters=self.cg_max_iters, linear_solver=self.linear_solver,
-        )  # fmt: skip
+            max_iters=self.newton_iters,
+            tol_dx=1e-6,
+            cg_rtol=self.cg_rtol,
+            cg_max_iters=self.cg_max_iters,
+            linear_solver=self.linear_solver,
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,8 +249,9 @@ class GarmentBatch:
             )
         shared = bool(np.all(coords == coords[:1]))
         flat = np.concatenate([coords[0], np.zeros((coords.shape[1], 1))], axis=1)
-        mesh = TriMesh.from_arrays(flat, topology.tri_indices, atlas(topology, coords[0]),
-                                   dtype=dtype)  # fmt: skip
+        mesh = TriMesh.from_arrays(
+            flat, topology.tri_indices, atlas(topology, coords[0]), dtype=dtype
+        )
         material = material.to(dtype=dtype)
         if shared:
             elastic = (
@@ -393,9 +402,15 @@ def drape(
         [capsule_distance(p, c)[0].min() for p, c in zip(pos_np, caps, strict=True)]
     )
     return DrapeResult(
-        pos, np.minimum(done_at, step + 1), converged, speed, gaps, min_dist, failed,
+        pos,
+        np.minimum(done_at, step + 1),
+        converged,
+        speed,
+        gaps,
+        min_dist,
+        failed,
         time.perf_counter() - start,
-    )  # fmt: skip
+    )
 
 
 _PER_INSTANCE = {

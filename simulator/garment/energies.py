@@ -168,9 +168,12 @@ class EnergyMembranePattern(EnergyMembraneWang):
 
     @staticmethod
     def from_rest(
-        stretching: torch.Tensor, rest: PatternRest, *, strain_dependent: bool = True,
+        stretching: torch.Tensor,
+        rest: PatternRest,
+        *,
+        strain_dependent: bool = True,
         anisotropic: bool = True,
-    ) -> EnergyMembranePattern:  # fmt: skip
+    ) -> EnergyMembranePattern:
         """From stabilised stiffness rows (B, 6, 4) [N/m] and the patterns' rest data."""
         core = EnergyMembraneWang.from_material(
             stretching, strain_dependent=strain_dependent, anisotropic=anisotropic
@@ -193,9 +196,13 @@ class EnergyBendingPattern(EnergyBendingDihedral):
 
     @staticmethod
     def from_rest(
-        mesh, bending: torch.Tensor, rest: PatternRest, *, curvature_dependent: bool = True,
+        mesh,
+        bending: torch.Tensor,
+        rest: PatternRest,
+        *,
+        curvature_dependent: bool = True,
         anisotropic: bool = True,
-    ) -> EnergyBendingPattern:  # fmt: skip
+    ) -> EnergyBendingPattern:
         """From material rows (B, 3, 5) [N·m]; hinge directions from the shared mesh."""
         core = EnergyBendingDihedral.from_material(
             mesh, bending, curvature_dependent=curvature_dependent, anisotropic=anisotropic

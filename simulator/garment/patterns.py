@@ -116,11 +116,21 @@ _SPECS: dict[GarmentType, tuple[ParamSpec, ...]] = {
     GarmentType.SKIRT: (
         ParamSpec("l1", "m", 0.30, 0.55, 0.37, "waist half-girth: top edge of each yoke"),
         ParamSpec(
-            "r1", "m", 0.30, 2.60, 0.80,
+            "r1",
+            "m",
+            0.30,
+            2.60,
+            0.80,
             "inner radius of the flared panel; its top arc r1*alpha is the hip half-girth",
         ),
-        ParamSpec("r2", "m", 0.20, 0.75, 0.40, "radial length of the flared panel (skirt length "
-                  "below the yoke)"),
+        ParamSpec(
+            "r2",
+            "m",
+            0.20,
+            0.75,
+            0.40,
+            "radial length of the flared panel (skirt length below the yoke)",
+        ),
         ParamSpec("alpha", "rad", 0.30, 1.50, 0.70, "sector angle of the flared panel (flare)"),
     ),
     GarmentType.PANTS: (
@@ -140,7 +150,7 @@ _SPECS: dict[GarmentType, tuple[ParamSpec, ...]] = {
         ParamSpec("h2", "m", 0.52, 0.82, 0.66, "total length (hem to neck point)"),
         ParamSpec("l1", "m", 0.08, 0.40, 0.20, "sleeve length"),
     ),
-}  # fmt: skip
+}
 
 
 def _garment(garment: GarmentType | str, field: str = "garment") -> GarmentType:
@@ -343,7 +353,7 @@ def _skirt_outlines(g: Mapping[str, float]) -> dict[str, Outline]:
         "top": [("hip", _arc(apex, r1, lo, hi))],
         "left": [("flare_side_l", _line(_polar(apex, outer, lo), _polar(apex, r1, lo)))],
         "right": [("flare_side_r", _line(_polar(apex, outer, hi), _polar(apex, r1, hi)))],
-    }  # fmt: skip
+    }
     return {"yoke_front": yoke, "yoke_back": yoke, "flare_front": flare, "flare_back": flare}
 
 
@@ -502,28 +512,45 @@ def _counts(garment: GarmentType, edge_length: float) -> dict[str, int]:
     if garment is GarmentType.SKIRT:
         across = max(n("hem", 4), n("waist", 4))
         return {
-            "hip": across, "waist": across, "hem": across,
-            "yoke_side_l": n("yoke_side_l", 2), "yoke_side_r": n("yoke_side_l", 2),
-            "flare_side_l": n("flare_side_l", 2), "flare_side_r": n("flare_side_l", 2),
-        }  # fmt: skip
+            "hip": across,
+            "waist": across,
+            "hem": across,
+            "yoke_side_l": n("yoke_side_l", 2),
+            "yoke_side_r": n("yoke_side_l", 2),
+            "flare_side_l": n("flare_side_l", 2),
+            "flare_side_r": n("flare_side_l", 2),
+        }
     if garment is GarmentType.PANTS:
         widest = outlines["back_r"]["right"][0][1][-1, 0]  # crotch point of the back
         across = max(3, round(0.5 * (widest + lengths["hem"]) / edge_length))
         low, high = n("out_low", 3), n("crotch", 3)
         return {
-            "hem": across, "waist": across, "out_low": low, "inseam": low,
-            "out_high": high, "crotch": high,
-        }  # fmt: skip
+            "hem": across,
+            "waist": across,
+            "out_low": low,
+            "inseam": low,
+            "out_high": high,
+            "crotch": high,
+        }
     # t-shirt
     neck = n("neck", 2)
     shoulder = n("shoulder_l", 1)
     arm = n("arm_l", 2)
     return {
-        "hem": 2 * shoulder + neck, "neck": neck, "shoulder_l": shoulder,
-        "shoulder_r": shoulder, "side_l": n("side_l", 2), "side_r": n("side_l", 2),
-        "arm_l": arm, "arm_r": arm, "cap_a": arm, "cap_b": arm, "cuff": 2 * arm,
-        "under_l": n("under_l", 2), "under_r": n("under_l", 2),
-    }  # fmt: skip
+        "hem": 2 * shoulder + neck,
+        "neck": neck,
+        "shoulder_l": shoulder,
+        "shoulder_r": shoulder,
+        "side_l": n("side_l", 2),
+        "side_r": n("side_l", 2),
+        "arm_l": arm,
+        "arm_r": arm,
+        "cap_a": arm,
+        "cap_b": arm,
+        "cuff": 2 * arm,
+        "under_l": n("under_l", 2),
+        "under_r": n("under_l", 2),
+    }
 
 
 # ---------------------------------------------------------------------------------- meshing
@@ -550,10 +577,12 @@ def _coons(bottom, top, left, right) -> np.ndarray:
     # Parameters follow the sides' own (arc-length) spacing, so seams stay uniform.
     p00, p10, p01, p11 = bottom[0], bottom[-1], top[0], top[-1]
     return (
-        (1 - t) * bottom[None] + t * top[None]
-        + (1 - s) * left[:, None] + s * right[:, None]
+        (1 - t) * bottom[None]
+        + t * top[None]
+        + (1 - s) * left[:, None]
+        + s * right[:, None]
         - ((1 - s) * (1 - t) * p00 + s * (1 - t) * p10 + (1 - s) * t * p01 + s * t * p11)
-    )  # fmt: skip
+    )
 
 
 def _grid_triangles(nu: int, nv: int, offset: int) -> np.ndarray:
@@ -632,9 +661,16 @@ class PatternTopology:
                 b = b[::-1]
             pairs[seam.name] = np.stack([a, b], -1)
         return PatternTopology(
-            garment, float(edge_length), counts, tuple(outlines), grids,
-            np.concatenate(tris), np.concatenate(panels), seg_verts, pairs,
-        )  # fmt: skip
+            garment,
+            float(edge_length),
+            counts,
+            tuple(outlines),
+            grids,
+            np.concatenate(tris),
+            np.concatenate(panels),
+            seg_verts,
+            pairs,
+        )
 
     def coords(self, params: Mapping[str, float]) -> np.ndarray:
         """Panel-frame vertex coordinates [m] for G (already checked), shape (V, 2)."""
@@ -842,11 +878,18 @@ def closed_form(garment: GarmentType | str, params: Mapping[str, float]) -> dict
         flare = 0.5 * alpha * ((r1 + r2) ** 2 - r1**2)
         side = math.hypot(hy, 0.5 * (hip - l1))
         return {
-            "areas": {"yoke_front": yoke, "yoke_back": yoke, "flare_front": flare,
-                      "flare_back": flare},
-            "seams": {"yoke_side_right": (side, side), "side_right": (r2, r2),
-                      "hip_front": (hip, hip)},
-        }  # fmt: skip
+            "areas": {
+                "yoke_front": yoke,
+                "yoke_back": yoke,
+                "flare_front": flare,
+                "flare_back": flare,
+            },
+            "seams": {
+                "yoke_side_right": (side, side),
+                "side_right": (r2, r2),
+                "hip_front": (hip, hip),
+            },
+        }
     if garment is GarmentType.TSHIRT:
         a = g["h2"] - TSHIRT_SHOULDER_DROP - g["h1"]
         sleeve = 0.5 * (2 * a + 2 * g["w1"]) * g["l1"]
@@ -854,16 +897,22 @@ def closed_form(garment: GarmentType | str, params: Mapping[str, float]) -> dict
         shoulder = math.hypot(g["w2"] / 2 - g["r"], TSHIRT_SHOULDER_DROP)
         return {
             "areas": {"sleeve_r": sleeve, "sleeve_l": sleeve},
-            "seams": {"side_right": (g["h1"], g["h1"]), "underarm_right": (under, under),
-                      "shoulder_right": (shoulder, shoulder), "armhole_right_front": (a, a)},
-        }  # fmt: skip
+            "seams": {
+                "side_right": (g["h1"], g["h1"]),
+                "underarm_right": (under, under),
+                "shoulder_right": (shoulder, shoulder),
+                "armhole_right_front": (a, a),
+            },
+        }
     # pants: outseam pieces are straight; the front waist is a horizontal line.
     crotch_y = g["h1"] - g["h3"]
     return {
         "areas": {},
-        "seams": {"outseam_low_right": (crotch_y, crotch_y),
-                  "outseam_high_right": (g["h3"], g["h3"])},
-    }  # fmt: skip
+        "seams": {
+            "outseam_low_right": (crotch_y, crotch_y),
+            "outseam_high_right": (g["h3"], g["h3"]),
+        },
+    }
 
 
 def pattern_json_text(pattern: Pattern, material: Mapping | None = None) -> str:

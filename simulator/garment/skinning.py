@@ -136,8 +136,11 @@ def rest_placement(pattern: Pattern, body: Mannequin) -> np.ndarray:
         placed.update(
             _torso_wrap(pattern, body, {"yoke_front": (0.0, 0.5), "yoke_back": (0.5, 1.0)}, z_skirt)
         )
-        placed.update(_torso_wrap(pattern, body, {"flare_front": (0.0, 0.5),
-                                                  "flare_back": (0.5, 1.0)}, z_skirt))  # fmt: skip
+        placed.update(
+            _torso_wrap(
+                pattern, body, {"flare_front": (0.0, 0.5), "flare_back": (0.5, 1.0)}, z_skirt
+            )
+        )
     elif garment is GarmentType.PANTS:
         waist_z = body.levels["waist"] - 0.03
         low = pattern.topology.counts["out_low"]
@@ -148,12 +151,18 @@ def rest_placement(pattern: Pattern, body: Mannequin) -> np.ndarray:
 
         placed.update(
             _torso_wrap(
-                pattern, body,
-                {"front_r": (0.0, 0.25), "front_l": (0.5, 0.25), "back_r": (1.0, 0.75),
-                 "back_l": (0.5, 0.75)},
-                z_pants, rows=range(low + 1, nv + 1),
+                pattern,
+                body,
+                {
+                    "front_r": (0.0, 0.25),
+                    "front_l": (0.5, 0.25),
+                    "back_r": (1.0, 0.75),
+                    "back_l": (0.5, 0.75),
+                },
+                z_pants,
+                rows=range(low + 1, nv + 1),
             )
-        )  # fmt: skip
+        )
         hips = {s: body.rest_joints[JOINTS.index(f"hip_{s}")] for s in ("r", "l")}
         for side, front, back in (("r", (0.0, 0.5), (1.0, 0.5)), ("l", (0.5, 0.0), (0.5, 1.0))):
             ids_f = _panel_rows(pattern, f"front_{side}")[0]
@@ -164,10 +173,13 @@ def rest_placement(pattern: Pattern, body: Mannequin) -> np.ndarray:
 
             placed.update(
                 _limb_wrap(
-                    pattern, {f"front_{side}": front, f"back_{side}": back}, centre,
-                    range(low + 1), (np.array([1.0, 0, 0]), np.array([0, 1.0, 0])),
+                    pattern,
+                    {f"front_{side}": front, f"back_{side}": back},
+                    centre,
+                    range(low + 1),
+                    (np.array([1.0, 0, 0]), np.array([0, 1.0, 0])),
                 )
-            )  # fmt: skip
+            )
     else:  # t-shirt
         neck_z = body.levels["neck_point"]
         armhole = g["h2"] - 0.04 - g["h1"]

@@ -95,9 +95,20 @@ class ShellKernel:
         tri, rest_inv, tri_area, fvec, hinges, rest_angle, scale, area, knots = self.geometry
         row0, fibres, samples, cumulative = self.params
         membrane = (tri, rest_inv, tri_area)
-        return membrane, (row0, fibres, fvec, STRETCH_SAMPLE_STRAIN), (
-            hinges, rest_angle, scale, area, samples, cumulative, knots, BEND_SCALE,
-        )  # fmt: skip
+        return (
+            membrane,
+            (row0, fibres, fvec, STRETCH_SAMPLE_STRAIN),
+            (
+                hinges,
+                rest_angle,
+                scale,
+                area,
+                samples,
+                cumulative,
+                knots,
+                BEND_SCALE,
+            ),
+        )
 
     def value(self, x: torch.Tensor) -> torch.Tensor:
         """Energy [J] per instance, shape (B,) (from the last fused pass when it was at ``x``)."""
@@ -128,9 +139,18 @@ class ShellKernel:
         tri_slots, hinge_slots = self.slots
         _match_threads()
         shell_assemble(
-            _np(x), tri, rest_inv, tri_area, tri_slots, *mem, *bend, hinge_slots,
-            energy, grad, values,
-        )  # fmt: skip
+            _np(x),
+            tri,
+            rest_inv,
+            tri_area,
+            tri_slots,
+            *mem,
+            *bend,
+            hinge_slots,
+            energy,
+            grad,
+            values,
+        )
         out = (energy, grad, values.reshape(batch, verts, width, 3, 3))
         self._last["x"] = (x, x._version)
         self._last["out"] = out
@@ -178,9 +198,15 @@ _BUILT_SIZE = 8
 
 
 def solve_two_level(
-    sparse, diag: torch.Tensor, aggregates: torch.Tensor, free: torch.Tensor,
-    rhs: torch.Tensor, active: torch.Tensor, rtol: float, max_iters: int,
-) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    sparse,
+    diag: torch.Tensor,
+    aggregates: torch.Tensor,
+    free: torch.Tensor,
+    rhs: torch.Tensor,
+    active: torch.Tensor,
+    rtol: float,
+    max_iters: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-instance additive two-level PCG of the block-sparse system (see :mod:`.pcg`).
 
     Args:
@@ -207,9 +233,18 @@ def solve_two_level(
     first = coarse_envelope(cols, agg, n_agg)
     factor = coarse_factor(coarse_matrix(values, cols, agg, free_np, n_agg), first, agg, free_np)
     x, iters, _ = pcg_two_level(
-        values, cols, _np(diag), agg, factor, first, free_np, _np(rhs), active.cpu().numpy(),
-        float(rtol), int(max_iters),
-    )  # fmt: skip
+        values,
+        cols,
+        _np(diag),
+        agg,
+        factor,
+        first,
+        free_np,
+        _np(rhs),
+        active.cpu().numpy(),
+        float(rtol),
+        int(max_iters),
+    )
     return torch.from_numpy(x).to(rhs), torch.from_numpy(iters)
 
 
@@ -227,8 +262,15 @@ def _solve_arrays(pattern, aggregates: torch.Tensor) -> tuple:
     return out
 
 
-def minimize_whole(shell: ShellKernel, quadratic: tuple, x0: torch.Tensor, free: torch.Tensor,
-                   settings, aggregates: torch.Tensor, pattern):  # fmt: skip
+def minimize_whole(
+    shell: ShellKernel,
+    quadratic: tuple,
+    x0: torch.Tensor,
+    free: torch.Tensor,
+    settings,
+    aggregates: torch.Tensor,
+    pattern,
+):
     """Whole Newton solve of ``shell(x) + 1/2 y^T Q y - g^T y + const`` in one kernel call.
 
     Args:
@@ -252,12 +294,23 @@ def minimize_whole(shell: ShellKernel, quadratic: tuple, x0: torch.Tensor, free:
     _match_threads()
     shell_args = (tri, rest_inv, tri_area, tri_slots, *mem, *bend, hinge_slots)
     newton = (
-        int(settings.max_iters), float(settings.tol_dx), float(settings.cg_rtol),
-        int(settings.cg_max_iters), bool(settings.line_search), int(settings.max_halvings),
-    )  # fmt: skip
+        int(settings.max_iters),
+        float(settings.tol_dx),
+        float(settings.cg_rtol),
+        int(settings.cg_max_iters),
+        bool(settings.line_search),
+        int(settings.max_halvings),
+    )
     x, newton_iters, cg_iters, update = newton_whole(
-        _np(x0), _np(quad), _np(centre), _np(force), _np(const), _np(free_b[..., 0]),
-        shell_args, _solve_arrays(pattern, aggregates), newton,
-    )  # fmt: skip
+        _np(x0),
+        _np(quad),
+        _np(centre),
+        _np(force),
+        _np(const),
+        _np(free_b[..., 0]),
+        shell_args,
+        _solve_arrays(pattern, aggregates),
+        newton,
+    )
     as_torch = torch.from_numpy
     return as_torch(x).to(x0), (as_torch(newton_iters), as_torch(cg_iters), as_torch(update).to(x0))

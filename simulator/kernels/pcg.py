@@ -295,7 +295,16 @@ def pcg_two_level(values, cols, diag, agg, factor, first, free, rhs, active, rto
     for b in prange(batch):
         if active[b]:
             iters[b], res[b] = pcg_one(
-                values[b], cols, diag[b], agg, factor[b], first, free[b], rhs[b], x[b], rtol,
+                values[b],
+                cols,
+                diag[b],
+                agg,
+                factor[b],
+                first,
+                free[b],
+                rhs[b],
+                x[b],
+                rtol,
                 max_iters,
-            )  # fmt: skip
+            )
     return x, iters, res

@@ -253,10 +253,28 @@ def _bending(x, hinge, rest_angle, scale, area, samples, cumulative, knots, bend
 
 @njit(cache=True, error_model="numpy")
 def _shell_instance(
-    x, tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
-    hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale, hinge_slots,
-    want, grad, values,
-):  # fmt: skip
+    x,
+    tri,
+    rest_inv,
+    tri_area,
+    tri_slots,
+    row0,
+    fibres,
+    fvec,
+    e_s,
+    hinges,
+    rest_angle,
+    edge_scale,
+    edge_area,
+    samples,
+    cumulative,
+    knots,
+    bend_scale,
+    hinge_slots,
+    want,
+    grad,
+    values,
+):
     """Energy of one instance [J]; with ``want`` also adds its gradient and Hessian blocks.
 
     ``x`` (V, 3), ``row0`` (4,), ``fibres`` (8,), ``samples`` (E, 5), ``grad`` (V, 3) and
@@ -283,9 +301,18 @@ def _shell_instance(
                         values[slot, d, e] += h3[i, j, d, e]
     for n in range(hinges.shape[0]):
         total += _bending(
-            x, hinges[n], rest_angle[n], edge_scale[n], edge_area[n], samples[n], cumulative[n],
-            knots, bend_scale, want, g4,
-        )  # fmt: skip
+            x,
+            hinges[n],
+            rest_angle[n],
+            edge_scale[n],
+            edge_area[n],
+            samples[n],
+            cumulative[n],
+            knots,
+            bend_scale,
+            want,
+            g4,
+        )
         if not want:
             continue
         for i in range(4):
@@ -307,10 +334,28 @@ def _shell_instance(
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def shell_assemble(
-    pos, tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
-    hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale, hinge_slots,
-    energy, grad, values,
-):  # fmt: skip
+    pos,
+    tri,
+    rest_inv,
+    tri_area,
+    tri_slots,
+    row0,
+    fibres,
+    fvec,
+    e_s,
+    hinges,
+    rest_angle,
+    edge_scale,
+    edge_area,
+    samples,
+    cumulative,
+    knots,
+    bend_scale,
+    hinge_slots,
+    energy,
+    grad,
+    values,
+):
     """Add energy (B,), gradient (B, V, 3) and PSD Hessian blocks into ELL ``values``.
 
     Args:
@@ -339,17 +384,49 @@ def shell_assemble(
     """
     for b in prange(pos.shape[0]):
         energy[b] += _shell_instance(
-            pos[b], tri, rest_inv, tri_area, tri_slots, row0[b], fibres[b], fvec, e_s,
-            hinges, rest_angle, edge_scale, edge_area, samples[b], cumulative[b], knots, bend_scale,
-            hinge_slots, True, grad[b], values[b],
-        )  # fmt: skip
+            pos[b],
+            tri,
+            rest_inv,
+            tri_area,
+            tri_slots,
+            row0[b],
+            fibres[b],
+            fvec,
+            e_s,
+            hinges,
+            rest_angle,
+            edge_scale,
+            edge_area,
+            samples[b],
+            cumulative[b],
+            knots,
+            bend_scale,
+            hinge_slots,
+            True,
+            grad[b],
+            values[b],
+        )
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def shell_energy(
-    pos, tri, rest_inv, tri_area, row0, fibres, fvec, e_s,
-    hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale,
-):  # fmt: skip
+    pos,
+    tri,
+    rest_inv,
+    tri_area,
+    row0,
+    fibres,
+    fvec,
+    e_s,
+    hinges,
+    rest_angle,
+    edge_scale,
+    edge_area,
+    samples,
+    cumulative,
+    knots,
+    bend_scale,
+):
     """Membrane + bending energy [J] per instance, (B,); arguments as :func:`shell_assemble`."""
     batch = pos.shape[0]
     out = np.zeros(batch)
@@ -359,8 +436,26 @@ def shell_energy(
         unused_grad = np.empty((1, 3))
         unused_values = np.empty((1, 3, 3))
         out[b] = _shell_instance(
-            pos[b], tri, rest_inv, tri_area, no_slots3, row0[b], fibres[b], fvec, e_s,
-            hinges, rest_angle, edge_scale, edge_area, samples[b], cumulative[b], knots, bend_scale,
-            no_slots4, False, unused_grad, unused_values,
-        )  # fmt: skip
+            pos[b],
+            tri,
+            rest_inv,
+            tri_area,
+            no_slots3,
+            row0[b],
+            fibres[b],
+            fvec,
+            e_s,
+            hinges,
+            rest_angle,
+            edge_scale,
+            edge_area,
+            samples[b],
+            cumulative[b],
+            knots,
+            bend_scale,
+            no_slots4,
+            False,
+            unused_grad,
+            unused_values,
+        )
     return out

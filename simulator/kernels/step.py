@@ -69,9 +69,25 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
     Returns:
         ``(x (B, V, 3), Newton iterations (B,), CG iterations (B,), last max update (B,))``.
     """
-    (tri, rest_inv, tri_area, tri_slots, row0, fibres, fvec, e_s,
-     hinges, rest_angle, edge_scale, edge_area, samples, cumulative, knots, bend_scale,
-     hinge_slots) = shell  # fmt: skip
+    (
+        tri,
+        rest_inv,
+        tri_area,
+        tri_slots,
+        row0,
+        fibres,
+        fvec,
+        e_s,
+        hinges,
+        rest_angle,
+        edge_scale,
+        edge_area,
+        samples,
+        cumulative,
+        knots,
+        bend_scale,
+        hinge_slots,
+    ) = shell
     cols, diag_slots, agg, first, n_agg = solve
     max_iters, tol_dx, cg_rtol, cg_max_iters, line_search, max_halvings = newton
     batch, verts, width = x0.shape[0], x0.shape[1], cols.shape[1]
@@ -99,10 +115,28 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
             grad[:] = 0.0
             flat[:] = 0.0
             energy = _shell_instance(
-                xb, tri, rest_inv, tri_area, tri_slots, row0[b], fibres[b], fvec, e_s,
-                hinges, rest_angle, edge_scale, edge_area, samples[b], cumulative[b], knots,
-                bend_scale, hinge_slots, True, grad, flat,
-            )  # fmt: skip
+                xb,
+                tri,
+                rest_inv,
+                tri_area,
+                tri_slots,
+                row0[b],
+                fibres[b],
+                fvec,
+                e_s,
+                hinges,
+                rest_angle,
+                edge_scale,
+                edge_area,
+                samples[b],
+                cumulative[b],
+                knots,
+                bend_scale,
+                hinge_slots,
+                True,
+                grad,
+                flat,
+            )
             energy += _quadratic(xb, quad[b], centre[b], force[b], grad, flat, diag_slots, True)
             if line_search and not have_value:
                 value = energy + const[b]
@@ -137,10 +171,28 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
                         for d in range(3):
                             trial[i, d] = xb[i, d] + alpha * dx[i, d]
                     trial_value = _shell_instance(
-                        trial, tri, rest_inv, tri_area, tri_slots, row0[b], fibres[b], fvec,
-                        e_s, hinges, rest_angle, edge_scale, edge_area, samples[b], cumulative[b],
-                        knots, bend_scale, hinge_slots, False, no_grad, no_values,
-                    )  # fmt: skip
+                        trial,
+                        tri,
+                        rest_inv,
+                        tri_area,
+                        tri_slots,
+                        row0[b],
+                        fibres[b],
+                        fvec,
+                        e_s,
+                        hinges,
+                        rest_angle,
+                        edge_scale,
+                        edge_area,
+                        samples[b],
+                        cumulative[b],
+                        knots,
+                        bend_scale,
+                        hinge_slots,
+                        False,
+                        no_grad,
+                        no_values,
+                    )
                     trial_value += _quadratic(
                         trial, quad[b], centre[b], force[b], no_grad, no_values, diag_slots, False
                     )

@@ -162,9 +162,15 @@ def newton_minimize(
             from ..kernels.bridge import solve_two_level
 
             dx, cg_iters = solve_two_level(
-                sparse, diag, aggregates, free, -grad, active, settings.cg_rtol,
+                sparse,
+                diag,
+                aggregates,
+                free,
+                -grad,
+                active,
+                settings.cg_rtol,
                 settings.cg_max_iters,
-            )  # fmt: skip
+            )
         else:
             if (
                 settings.preconditioner == "two_level"

@@ -37,10 +37,16 @@ CONFIGS = str(ROOT / "configs")
 SIZE = 32  # px, side of the simulated tiles
 FRAMES = 4  # shown: round(0.2 s x 15 fps) + 1
 TINY = [
-    "level=1", "scenario.settle_time=0.1", "fps=15", "record_time=0.2", "texture_size=32",
-    f"render.camera.width={SIZE}", f"render.camera.height={SIZE}", "sheet_frames=3",
+    "level=1",
+    "scenario.settle_time=0.1",
+    "fps=15",
+    "record_time=0.2",
+    "texture_size=32",
+    f"render.camera.width={SIZE}",
+    f"render.camera.height={SIZE}",
+    "sheet_frames=3",
     "video_fps=15",
-]  # fmt: skip
+]
 OUTPUTS = ["clone.mp4", "contact_sheet.png", "prediction.json", "sequence.npz"]
 
 
@@ -56,14 +62,26 @@ def trained(tiny_dataset, tmp_path_factory):
 
     run = tmp_path_factory.mktemp("clone") / "logs" / "train" / "tiny"
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[
-            f"dataset.dir={tiny_dataset}", f"paths.output_dir={run}",
-            f"paths.log_dir={run.parent}", f"paths.work_dir={run}", "encoder.width=0.25",
-            "encoder.feature_dim=16", "model.net.hidden_size=16", "data.batch_size=2",
-            "data.num_workers=0", "trainer.max_epochs=1", "~logger",
-            "callbacks.progress_bar=null", "callbacks.lr_monitor=null", "test=false",
-            "trainer.log_every_n_steps=1",
-        ])  # fmt: skip
+        cfg = compose(
+            config_name="train",
+            overrides=[
+                f"dataset.dir={tiny_dataset}",
+                f"paths.output_dir={run}",
+                f"paths.log_dir={run.parent}",
+                f"paths.work_dir={run}",
+                "encoder.width=0.25",
+                "encoder.feature_dim=16",
+                "model.net.hidden_size=16",
+                "data.batch_size=2",
+                "data.num_workers=0",
+                "trainer.max_epochs=1",
+                "~logger",
+                "callbacks.progress_bar=null",
+                "callbacks.lr_monitor=null",
+                "test=false",
+                "trainer.log_every_n_steps=1",
+            ],
+        )
     (run / ".hydra").mkdir(parents=True)
     OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
     train_entry.train(cfg)
@@ -86,8 +104,9 @@ def videos(tiny_dataset, tmp_path_factory):
 
 
 def _clone(out, video, run, *extra):
-    return clone.run(_compose(f"paths.output_dir={out}", f"video={video}", f"run={run}", *TINY,
-                              *extra))  # fmt: skip
+    return clone.run(
+        _compose(f"paths.output_dir={out}", f"video={video}", f"run={run}", *TINY, *extra)
+    )
 
 
 @pytest.mark.render
@@ -104,9 +123,13 @@ def test_clone_of_a_frame_folder_writes_prediction_video_and_sheet(
     report = json.loads(out.prediction.read_text())
     assert report["video"] == str(videos["folder"])
     assert report["clips"] == {
-        "count": 2, "start_frames": [0, 4], "clip_len": 4, "clip_stride": 4,
-        "target_fps": 15.0, "size": 32,
-    }  # fmt: skip
+        "count": 2,
+        "start_frames": [0, 4],
+        "clip_len": 4,
+        "clip_stride": 4,
+        "target_fps": 15.0,
+        "size": 32,
+    }
     assert report["run"]["checkpoint"] == str(trained / "checkpoints" / "best.ckpt")
     probs = np.array(report["probabilities"])
     assert probs.shape == (CLASS_COUNT,) and abs(probs.sum() - 1) < 1e-9
@@ -117,7 +140,7 @@ def test_clone_of_a_frame_folder_writes_prediction_video_and_sheet(
     assert predicted["class"] == int(np.argmax(probs)) == top[0]["class"]
     assert (predicted["stretch_multiplier"], predicted["bend_multiplier"]) == (
         multipliers_from_class(predicted["class"])
-    )  # fmt: skip
+    )
     assert report["scores"]["predicted_class"] == predicted["class"]
     assert 0 <= report["scores"]["material_score"] <= CLASS_COUNT - 1
 
@@ -129,8 +152,10 @@ def test_clone_of_a_frame_folder_writes_prediction_video_and_sheet(
     others = [probs[c] for c in neighbours if c not in chosen]
     assert all(probs[c] >= max(others, default=0.0) for c in chosen[1:])
     assert [e["role"] for e in report["comparison"]["classes"]] == [
-        "predicted", "neighbour", "neighbour"
-    ]  # fmt: skip
+        "predicted",
+        "neighbour",
+        "neighbour",
+    ]
     assert report["simulation"]["motion"] == "arm" and report["simulation"]["frames"] == FRAMES
 
     video = cv2.VideoCapture(str(out.video))
@@ -178,8 +203,9 @@ def test_prediction_is_deterministic_and_sees_the_training_clips(trained, videos
     assert found.checkpoint == trained / "checkpoints" / "best.ckpt"
     assert found.spec.preset.frames_per_clip == 4 and found.spec.camera.height == 32
     module = clone.load_checked_classifier(found)
-    clips = clone.VideoClips(videos["folder"], fps=15, clip_len=4, clip_stride=2, target_fps=15,
-                             size=32)  # fmt: skip
+    clips = clone.VideoClips(
+        videos["folder"], fps=15, clip_len=4, clip_stride=2, target_fps=15, size=32
+    )
     assert [start for _, start in clips.clips] == [0, 2, 4]
     np.testing.assert_array_equal(clips.read_frames(2), videos["frames"][4:])
     one = clone.predict_video(module, clips, device=torch.device("cpu"))
@@ -191,8 +217,9 @@ def test_prediction_is_deterministic_and_sees_the_training_clips(trained, videos
 
 @pytest.mark.render
 def test_display_frames_play_the_video_in_real_time(videos):
-    clips = clone.VideoClips(videos["folder"], fps=15, clip_len=4, clip_stride=4, target_fps=15,
-                             size=32)  # fmt: skip
+    clips = clone.VideoClips(
+        videos["folder"], fps=15, clip_len=4, clip_stride=4, target_fps=15, size=32
+    )
     slow = clone.display_frames(clips, 6, 30.0, 32)  # 15 fps shown at 30: each frame twice
     np.testing.assert_array_equal(slow, videos["frames"][[0, 0, 1, 1, 2, 2]])
     long = clone.display_frames(clips, 10, 15.0, 32)  # longer than the video: holds the last
@@ -239,14 +266,21 @@ def bad(tmp_path, trained, videos, tiny_dataset):
     (root / "empty_run").mkdir()
     (root / "broken.ckpt").write_bytes(b"\x00" * 64)
     config = {
-        "_target_": "models.components.video_nets.CNNLSTMNet", "num_classes": 2,
-        "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
-                    "name": "alexnet5", "feature_dim": 16, "width": 0.25},
+        "_target_": "models.components.video_nets.CNNLSTMNet",
+        "num_classes": 2,
+        "encoder": {
+            "_target_": "models.components.frame_encoder.FrameEncoder",
+            "name": "alexnet5",
+            "feature_dim": 16,
+            "width": 0.25,
+        },
         "hidden_size": 16,
-    }  # fmt: skip
+    }
     module = MaterialClassifierModule(instantiate(config), net_config=config)
-    torch.save({"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()},
-               root / "two_classes.ckpt")  # fmt: skip
+    torch.save(
+        {"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()},
+        root / "two_classes.ckpt",
+    )
     return {"in": root, "run": trained, "video": videos["folder"], "data": tiny_dataset}
 
 
@@ -262,10 +296,14 @@ def bad(tmp_path, trained, videos, tiny_dataset):
         (["run={in}/missing"], "run: {in}/missing does not exist; give a training run folder"),
         (["run={in}/empty_run"], "run: {in}/empty_run has no checkpoints/best.ckpt or"),
         (["run={in}/no_config"], "run: {in}/no_config has no .hydra/config.yaml"),
-        (["run={in}/broken.ckpt", "data_dir={data}"],
-         "run: {in}/broken.ckpt is not a torch checkpoint"),
-        (["run={in}/two_classes.ckpt", "data_dir={data}"],
-         "run: checkpoint {in}/two_classes.ckpt predicts 2 classes but {data} has 54"),
+        (
+            ["run={in}/broken.ckpt", "data_dir={data}"],
+            "run: {in}/broken.ckpt is not a torch checkpoint",
+        ),
+        (
+            ["run={in}/two_classes.ckpt", "data_dir={data}"],
+            "run: checkpoint {in}/two_classes.ckpt predicts 2 classes but {data} has 54",
+        ),
         (["data_dir={in}"], "data_dir: {in}/spec.json not found"),
         (["video_fps=0"], "video_fps must be a number > 0, got 0"),
         (["clip_stride=0"], "clip_stride must be an integer >= 1, got 0"),
@@ -275,7 +313,7 @@ def bad(tmp_path, trained, videos, tiny_dataset):
         (["record_time=0.01"], "record_time must span at least one frame interval"),
         (["level=4"], "level must be an integer in [1, 3], got 4"),
     ],
-)  # fmt: skip
+)
 def test_bad_inputs_are_refused_naming_the_field(overrides, message, bad, tmp_path, monkeypatch):
     monkeypatch.setattr(clone, "predict", _refuse_to_work)
     monkeypatch.setattr(clone, "simulate_unit", _refuse_to_work)
@@ -283,9 +321,14 @@ def test_bad_inputs_are_refused_naming_the_field(overrides, message, bad, tmp_pa
     out = tmp_path / "out"
     with pytest.raises(InputError) as info:
         clone.run(
-            _compose(f"paths.output_dir={out}", f"video={bad['video']}", f"run={bad['run']}",
-                     *TINY, *[o.format(**places) for o in overrides])
-        )  # fmt: skip
+            _compose(
+                f"paths.output_dir={out}",
+                f"video={bad['video']}",
+                f"run={bad['run']}",
+                *TINY,
+                *[o.format(**places) for o in overrides],
+            )
+        )
     assert str(info.value).startswith(message.format(**places))
     assert not out.exists()
 
@@ -297,8 +340,9 @@ def test_unreadable_frames_are_refused_and_nothing_is_written(bad, tmp_path, vid
     (broken / "frame_0005.png").write_bytes(b"not a png")
     out = tmp_path / "out"
     with pytest.raises(InputError, match=r"^video: could not read frames"):
-        clone.run(_compose(f"paths.output_dir={out}", f"video={broken}", f"run={bad['run']}",
-                           *TINY))  # fmt: skip
+        clone.run(
+            _compose(f"paths.output_dir={out}", f"video={broken}", f"run={bad['run']}", *TINY)
+        )
     assert not out.exists()
 
 
@@ -313,10 +357,20 @@ def test_video_and_run_are_required(tmp_path):
 def test_the_command_prints_one_line_and_exits_2(trained, tmp_path):
     env = subprocess_env()
     done = subprocess.run(
-        [sys.executable, "-m", "apps.clone", f"video={tmp_path}/none.mp4", f"run={trained}",
-         f"paths.root_dir={tmp_path}"],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "apps.clone",
+            f"video={tmp_path}/none.mp4",
+            f"run={trained}",
+            f"paths.root_dir={tmp_path}",
+        ],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines() == [
         f"error: video: {tmp_path}/none.mp4 does not exist; give {clone.VIDEO_HELP}"

@@ -15,8 +15,13 @@ from .test_clone import OUTPUTS, SIZE, TINY, _compose, trained, videos  # noqa: 
 
 @pytest.mark.render
 def test_clone_onto_a_skirt_writes_video_sheet_and_sequence(trained, videos, tmp_path):  # noqa: F811
-    cfg = _compose(f"paths.output_dir={tmp_path}", f"video={videos['folder']}", f"run={trained}",
-                   *TINY, "target=skirt")  # fmt: skip
+    cfg = _compose(
+        f"paths.output_dir={tmp_path}",
+        f"video={videos['folder']}",
+        f"run={trained}",
+        *TINY,
+        "target=skirt",
+    )
     out = clone.run(cfg)
     assert sorted(p.name for p in tmp_path.iterdir()) == OUTPUTS
     report = json.loads(out.prediction.read_text())

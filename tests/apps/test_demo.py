@@ -19,10 +19,16 @@ ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = str(ROOT / "configs")
 SIZE = 32  # px, frame side
 TINY = [
-    "classes=[0,53]", "level=1", "scenario.settle_time=0.1", "fps=15", "record_time=0.2",
-    f"render.camera.width={SIZE}", f"render.camera.height={SIZE}", "texture_size=32",
+    "classes=[0,53]",
+    "level=1",
+    "scenario.settle_time=0.1",
+    "fps=15",
+    "record_time=0.2",
+    f"render.camera.width={SIZE}",
+    f"render.camera.height={SIZE}",
+    "texture_size=32",
     "sheet_frames=3",
-]  # fmt: skip
+]
 FRAMES = 4  # round(0.2 s x 15 fps) + 1: frame 0 is the rest state
 
 
@@ -35,12 +41,16 @@ def _compose(*overrides):
 def test_tiny_demo_writes_a_labelled_sheet_a_video_and_the_sequence(tmp_path, capsys):
     out = demo.run(_compose(f"paths.output_dir={tmp_path}", *TINY))
     assert (out.sheet, out.video, out.sequence) == (
-        tmp_path / "contact_sheet.png", tmp_path / "classes.mp4", tmp_path / "sequence.npz"
-    )  # fmt: skip
+        tmp_path / "contact_sheet.png",
+        tmp_path / "classes.mp4",
+        tmp_path / "sequence.npz",
+    )
     # Nothing else: no temporary files are left behind.
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "classes.mp4", "contact_sheet.png", "sequence.npz"
-    ]  # fmt: skip
+        "classes.mp4",
+        "contact_sheet.png",
+        "sequence.npz",
+    ]
 
     sequence = MeshSequence.load(out.sequence)
     assert sequence.labels == [0, 53] and sequence.pos.shape[1] == FRAMES
@@ -100,8 +110,12 @@ def test_the_command_prints_one_line_for_a_bad_field(tmp_path):
     env = subprocess_env()
     done = subprocess.run(
         [sys.executable, "-m", "apps.demo", "classes=[1.7]", f"paths.root_dir={tmp_path}"],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines() == [
         "error: classes[0] must be an integer class id in [0, 53], got 1.7"

@@ -16,17 +16,20 @@ from sim2real.ladder import LadderFeatures
 from simulator.cloth.scenes import ScenarioWind
 
 SPEC = DatasetSpec(
-    motion="wind", scenario=ScenarioWind(resolution_level=1),
-    preset=SizePreset("t", sims_per_class=2, clips_per_sim=1, val_sims_per_class=0,
-                      test_sims_per_class=0),
-)  # fmt: skip
+    motion="wind",
+    scenario=ScenarioWind(resolution_level=1),
+    preset=SizePreset(
+        "t", sims_per_class=2, clips_per_sim=1, val_sims_per_class=0, test_sims_per_class=0
+    ),
+)
 
 
 def _features(rows: dict[str, np.ndarray], videos: int, clips: int) -> LadderFeatures:
     groups = np.repeat([f"v{i:03d}" for i in range(videos)], clips)
     n = videos * clips
-    return LadderFeatures(rungs=rows, groups=groups, class_id=np.full(n, -1),
-                          stiffness=np.ones(n), density=np.ones(n))  # fmt: skip
+    return LadderFeatures(
+        rungs=rows, groups=groups, class_id=np.full(n, -1), stiffness=np.ones(n), density=np.ones(n)
+    )
 
 
 def test_a_planted_shift_gives_its_size_in_between_video_sds_on_its_own_feature():
@@ -34,8 +37,10 @@ def test_a_planted_shift_gives_its_size_in_between_video_sds_on_its_own_feature(
     videos, clips = 400, 3
     per_video = rng.normal(size=(videos, 4))
     jitter = 0.01 * rng.normal(size=(videos * clips, 4))
-    twin = {"pixel": np.repeat(per_video, clips, axis=0) + jitter,
-            "enc.fc6": rng.normal(size=(videos * clips, 2))}  # fmt: skip
+    twin = {
+        "pixel": np.repeat(per_video, clips, axis=0) + jitter,
+        "enc.fc6": rng.normal(size=(videos * clips, 2)),
+    }
     planted = {k: v.copy() for k, v in twin.items()}
     planted["pixel"][:, 2] += 0.3  # a third of the between-video spread
     size = paired_effect_size(_features(planted, videos, clips), _features(twin, videos, clips))
@@ -76,8 +81,12 @@ def test_the_needed_effect_size_is_the_two_sample_power_formula():
 def test_effects_parse_with_their_strengths_checked_by_the_library():
     library = candidate_library(SPEC)
     effect = parse_effect("visual.rolling_shutter=1.0", library)
-    assert effect == {"name": "visual.rolling_shutter", "stage": "camera", "strength": 1.0,
-                      "library": True}  # fmt: skip
+    assert effect == {
+        "name": "visual.rolling_shutter",
+        "stage": "camera",
+        "strength": 1.0,
+        "library": True,
+    }
     assert parse_effect("visual.shadows", library)["strength"] is None
     assert parse_effect("visual.compression=20", library)["strength"] == 20
     with pytest.raises(ValueError, match=r"not a candidate; allowed: \["):
@@ -112,12 +121,15 @@ def test_taking_out_the_labelled_materials_leaves_the_shift_over_the_residual_sp
     per_video = material + rng.normal(size=videos)
     twin = {"motion": np.repeat(per_video[:, None], clips, axis=0)}
     planted = {"motion": twin["motion"] + 0.3}
-    size = paired_effect_size(_features(planted, videos, clips), _features(twin, videos, clips),
-                              design)  # fmt: skip
+    size = paired_effect_size(
+        _features(planted, videos, clips), _features(twin, videos, clips), design
+    )
     assert size["d"] < 0.12  # 0.3 over the whole spread, about 3.5
     assert size["d_adjusted"] == pytest.approx(0.3, rel=0.15)  # 0.3 over the residual 1
     assert "d_adjusted" not in paired_effect_size(
-        _features(planted, videos, clips), _features(twin, videos, clips))
+        _features(planted, videos, clips), _features(twin, videos, clips)
+    )
     with pytest.raises(ValueError, match="covariates"):
-        paired_effect_size(_features(planted, videos, clips), _features(twin, videos, clips),
-                           design[:-1])  # fmt: skip
+        paired_effect_size(
+            _features(planted, videos, clips), _features(twin, videos, clips), design[:-1]
+        )

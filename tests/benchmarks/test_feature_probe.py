@@ -41,8 +41,17 @@ def test_mlp_reads_a_class_code_and_not_noise():
 
 @pytest.mark.render
 def test_probe_command_writes_json_and_markdown(tiny_dataset, tmp_path):
-    results = main([str(tiny_dataset), "--mesh-cache", str(tiny_dataset / "meshes"),
-                    "--out", str(tmp_path), "--epochs", "2"])  # fmt: skip
+    results = main(
+        [
+            str(tiny_dataset),
+            "--mesh-cache",
+            str(tiny_dataset / "meshes"),
+            "--out",
+            str(tmp_path),
+            "--epochs",
+            "2",
+        ]
+    )
     assert set(results) == set(FEATURES)
     stored = json.loads((tmp_path / f"{tiny_dataset.name}-mlp.json").read_text())
     assert stored["results"] == results and stored["protocol"] == "simulation"
@@ -60,9 +69,20 @@ def test_probe_command_writes_json_and_markdown(tiny_dataset, tmp_path):
 
 @pytest.mark.render
 def test_geometry_only_probe_per_clip_position(tiny_dataset, tmp_path):
-    results = main([str(tiny_dataset), "--mesh-cache", str(tiny_dataset / "meshes"),
-                    "--out", str(tmp_path), "--epochs", "2", "--features", "geometry",
-                    "--by-clip-index"])  # fmt: skip
+    results = main(
+        [
+            str(tiny_dataset),
+            "--mesh-cache",
+            str(tiny_dataset / "meshes"),
+            "--out",
+            str(tmp_path),
+            "--epochs",
+            "2",
+            "--features",
+            "geometry",
+            "--by-clip-index",
+        ]
+    )
     assert set(results) == {"geometry"}
     stored = json.loads((tmp_path / f"{tiny_dataset.name}-mlp.json").read_text())
     positions = stored["geometry_by_clip_index"]
@@ -79,10 +99,11 @@ def test_per_clip_position_reads_the_position_that_carries_the_class():
     rng = np.random.default_rng(0)
     code = {c: rng.normal(size=20) for c in (0, 7, 53)}
     features = {
-        c["key"]: np.float32(3.0 * (int(c["clip_index"]) == informative) * code[c["class_id"]]
-                             + rng.normal(size=20))
+        c["key"]: np.float32(
+            3.0 * (int(c["clip_index"]) == informative) * code[c["class_id"]] + rng.normal(size=20)
+        )
         for c in manifest.clips
-    }  # fmt: skip
+    }
     results = by_clip_index(train, test, features, epochs=40)
     assert sorted(results) == positions
     assert results[informative]["acc"] == 1.0
@@ -110,6 +131,12 @@ def test_class_separation_on_known_clouds():
 def test_positions_table_lists_each_clip_start():
     result = {"clips": 4, "acc": 0.5, "stretch_acc": 0.75, "bend_acc": 0.5, "train_acc": 1.0}
     position = {**result, "spread": 0.0052, "spacing": 0.0024}
-    text = probe_markdown("d", "simulation", 2, {"geometry": result}, {0: position, 1: position},
-                          {0: (0, 0.0), 1: (10, 10 / 15)})  # fmt: skip
+    text = probe_markdown(
+        "d",
+        "simulation",
+        2,
+        {"geometry": result},
+        {0: position, 1: position},
+        {0: (0, 0.0), 1: (10, 10 / 15)},
+    )
     assert "| 1 | 10 | 0.67 | 4 | 50.0 | 75.0 | 50.0 | 100.0 | 0.52 | 0.24 |" in text

@@ -12,21 +12,38 @@ def _row(seed, kind, **values):
 
 
 ROWS = [
-    _row(1, "multi", factor_f1=1.0, factor_f1_matter=1.0, factor_precision=1.0,
-         factor_recall=1.0, stage_share_error_pts=4.0),
-    _row(2, "multi", factor_f1=0.5, factor_f1_matter=0.5, factor_precision=1.0,
-         factor_recall=1 / 3, stage_share_error_pts=20.0),
+    _row(
+        1,
+        "multi",
+        factor_f1=1.0,
+        factor_f1_matter=1.0,
+        factor_precision=1.0,
+        factor_recall=1.0,
+        stage_share_error_pts=4.0,
+    ),
+    _row(
+        2,
+        "multi",
+        factor_f1=0.5,
+        factor_f1_matter=0.5,
+        factor_precision=1.0,
+        factor_recall=1 / 3,
+        stage_share_error_pts=20.0,
+    ),
     _row(3, "twin", false_attribution=False),
     _row(4, "twin", false_attribution=True),
-]  # fmt: skip
+]
 
 
 def _loop(before, after):
     def corr(r):
         return {"pearson": r, "pearson_ci": [r - 0.1, r + 0.1]}
 
-    pairs = {"bend_score": "stiffness", "stretch_score": "stretch_stiffness",
-             "material_score": "density"}  # fmt: skip
+    pairs = {
+        "bend_score": "stiffness",
+        "stretch_score": "stretch_stiffness",
+        "material_score": "density",
+    }
     every = {
         label: {"all": {s: {c: corr(v)} for s, c in pairs.items()}}
         for label, v in (("before", before), ("after", after))
@@ -43,10 +60,16 @@ def test_figures_and_targets_from_a_round_and_a_loop():
     assert result["independent_engine_r_gain_min"] == pytest.approx(0.3)
     assert result["independent_engine_r_after_min"] == pytest.approx(0.55)
     met = {k: t["met"] for k, t in result["targets"].items()}
-    assert met == {"multi_sets": False, "twin_sets": False, "factor_f1": False,
-                   "stage_share_error_pts_max": False, "twin_false_attribution": False,
-                   "independent_engine_r_gain_min": True,
-                   "independent_engine_r_after_min": True, "quick_minutes": True}  # fmt: skip
+    assert met == {
+        "multi_sets": False,
+        "twin_sets": False,
+        "factor_f1": False,
+        "stage_share_error_pts_max": False,
+        "twin_false_attribution": False,
+        "independent_engine_r_gain_min": True,
+        "independent_engine_r_after_min": True,
+        "quick_minutes": True,
+    }
     assert "| factor_f1 | >= 0.8 | 0.75 | no |" in table(result)
 
 

@@ -51,8 +51,12 @@ def test_check_choice_bool_and_class_ids():
     with pytest.raises(InputError, match=r"^flag must be true or false, got 'yes'$"):
         check_bool("yes", "flag")
     assert check_class_ids([0, 26.0, 53]) == (0, 26, 53)
-    for bad, where in (([1.7], r"classes\[0\]"), ([0, 54], r"classes\[1\]"),
-                       ([0, "a"], r"classes\[1\]"), ([True], r"classes\[0\]")):  # fmt: skip
+    for bad, where in (
+        ([1.7], r"classes\[0\]"),
+        ([0, 54], r"classes\[1\]"),
+        ([0, "a"], r"classes\[1\]"),
+        ([True], r"classes\[0\]"),
+    ):
         with pytest.raises(InputError, match=rf"^{where} must be an integer class id in \[0, 53\]"):
             check_class_ids(bad)
     for bad in (5, "0,1", [], {"a": 1}):
@@ -76,8 +80,12 @@ def test_check_device_and_cuda_requests():
             require_cuda("trainer.accelerator=gpu", "use trainer=cpu")
 
 
-SIM = {"_target_": "simulator.cloth.rollout.SimSettings", "max_dt": 0.005, "dtype": "float64",
-       "newton": {"_target_": "simulator.solvers.NewtonSettings", "max_iters": 1}}  # fmt: skip
+SIM = {
+    "_target_": "simulator.cloth.rollout.SimSettings",
+    "max_dt": 0.005,
+    "dtype": "float64",
+    "newton": {"_target_": "simulator.solvers.NewtonSettings", "max_iters": 1},
+}
 
 
 @pytest.mark.parametrize(
@@ -86,11 +94,13 @@ SIM = {"_target_": "simulator.cloth.rollout.SimSettings", "max_dt": 0.005, "dtyp
         ({"max_dt": "abc"}, "sim.max_dt must be a number, got 'abc'"),
         ({"max_dt": True}, "sim.max_dt must be a number, got True"),
         ({"settle_max_dt": "x"}, "sim.settle_max_dt must be a number or null, got 'x'"),
-        ({"newton": {**SIM["newton"], "max_iters": 1.5}},
-         "sim.newton.max_iters must be an integer, got 1.5"),
+        (
+            {"newton": {**SIM["newton"], "max_iters": 1.5}},
+            "sim.newton.max_iters must be an integer, got 1.5",
+        ),
         ({"fast": True}, "sim.fast is not a field of sim; allowed: max_dt, newton,"),
     ],
-)  # fmt: skip
+)
 def test_check_node_types_fields_against_the_target(change, message):
     check_node(SIM, "sim")  # the valid node passes
     with pytest.raises(InputError, match=r"^" + message.replace("(", r"\(").replace(")", r"\)")):
@@ -134,12 +144,16 @@ def test_report_user_errors_prints_one_line_and_exits_2(capsys):
         raise exc
 
     for exc, line in (
-        (InputError("seed must be an integer >= 0, got 'abc'"),
-         "error: seed must be an integer >= 0, got 'abc'"),
+        (
+            InputError("seed must be an integer >= 0, got 'abc'"),
+            "error: seed must be an integer >= 0, got 'abc'",
+        ),
         (MaterialError("class_id must be\nan integer"), "error: class_id must be an integer"),
-        (FileNotFoundError("dataset directory x does not exist"),
-         "error: dataset directory x does not exist"),
-    ):  # fmt: skip
+        (
+            FileNotFoundError("dataset directory x does not exist"),
+            "error: dataset directory x does not exist",
+        ),
+    ):
         with pytest.raises(SystemExit) as info:
             entry(exc)
         assert info.value.code == 2

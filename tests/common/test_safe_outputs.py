@@ -103,14 +103,23 @@ def _entry(exc):
     ("exc", "code", "line"),
     [
         (KeyboardInterrupt(), 130, INTERRUPTED),
-        (OSError(errno.ENOSPC, "No space left on device", "/d/x.npz"), 2,
-         "error: cannot write /d/x.npz: No space left on device"),
-        (PermissionError(errno.EACCES, "Permission denied", "/d"), 2,
-         "error: cannot write /d: Permission denied"),
-        (FileExistsError(errno.EEXIST, "File exists", "/d"), 2,
-         "error: cannot make the folder /d: a file of that name exists"),
+        (
+            OSError(errno.ENOSPC, "No space left on device", "/d/x.npz"),
+            2,
+            "error: cannot write /d/x.npz: No space left on device",
+        ),
+        (
+            PermissionError(errno.EACCES, "Permission denied", "/d"),
+            2,
+            "error: cannot write /d: Permission denied",
+        ),
+        (
+            FileExistsError(errno.EEXIST, "File exists", "/d"),
+            2,
+            "error: cannot make the folder /d: a file of that name exists",
+        ),
     ],
-)  # fmt: skip
+)
 def test_interrupts_and_file_system_errors_end_in_one_line(exc, code, line, capsys):
     with pytest.raises(SystemExit) as info:
         _entry(exc)()
@@ -146,9 +155,14 @@ def _sequence(frames=4):
     rng = np.random.default_rng(0)
     return MeshSequence(
         pos=rng.normal(size=(2, frames, 4, 3)).astype(np.float32),
-        tri_indices=np.array([[0, 1, 2], [1, 3, 2]]), uv=rng.random((4, 2)).astype(np.float32),
-        fps=30.0, seeds=[0, 1], labels=[0, 1], wind_levels=[0, 0], meta={},
-    )  # fmt: skip
+        tri_indices=np.array([[0, 1, 2], [1, 3, 2]]),
+        uv=rng.random((4, 2)).astype(np.float32),
+        fps=30.0,
+        seeds=[0, 1],
+        labels=[0, 1],
+        wind_levels=[0, 0],
+        meta={},
+    )
 
 
 def _disk_fills_after(count, monkeypatch):
@@ -184,8 +198,9 @@ def test_staged_folder_adds_files_to_an_existing_folder_and_keeps_the_others(tmp
     assert [p.name for p in (tmp_path / "own").iterdir()] == ["new.txt"]
 
 
-def test_export_command_checks_its_inputs_and_writes_all_frames_or_none(tmp_path, monkeypatch,
-                                                                         capsys):  # fmt: skip
+def test_export_command_checks_its_inputs_and_writes_all_frames_or_none(
+    tmp_path, monkeypatch, capsys
+):
     path = _sequence().save(tmp_path / "seq.npz")
     (tmp_path / "junk.npz").write_text("hello")
     (tmp_path / "half.npz").write_bytes(path.read_bytes()[:500])
@@ -208,7 +223,6 @@ def test_export_command_checks_its_inputs_and_writes_all_frames_or_none(tmp_path
         export_main([str(path), str(tmp_path / "frames")])
     assert info.value.code == 2 and "No space left on device" in capsys.readouterr().err
     assert not (tmp_path / "frames").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "half.npz", "junk.npz",
-                                                           "seq.npz"]  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "half.npz", "junk.npz", "seq.npz"]
     monkeypatch.undo()
     assert len(export_main([str(path), str(tmp_path / "frames")])) == 4

@@ -12,9 +12,14 @@ from simulator.cloth.rollout import SimSettings
 from simulator.cloth.scenes import ScenarioWind
 
 TINY_PRESET = SizePreset(
-    "tiny", sims_per_class=3, clips_per_sim=1, val_sims_per_class=1, test_sims_per_class=1,
-    frames_per_clip=4, fps=15.0,
-)  # fmt: skip
+    "tiny",
+    sims_per_class=3,
+    clips_per_sim=1,
+    val_sims_per_class=1,
+    test_sims_per_class=1,
+    frames_per_clip=4,
+    fps=15.0,
+)
 
 
 def tiny_spec(**changes) -> DatasetSpec:

@@ -85,10 +85,15 @@ def test_fuzzed_labels_give_one_line_errors(footage):
     rng = np.random.default_rng(61)
     outcomes = {"read": 0, "refused": 0}
     for _ in range(300):
-        header = "video,stiffness,density" if rng.random() < 0.8 else "".join(
-            rng.choice(_ALPHABET, size=int(rng.integers(0, 20))))  # fmt: skip
-        rows = ["".join(rng.choice(_ALPHABET, size=int(rng.integers(0, 30))))
-                for _ in range(int(rng.integers(0, 5)))]  # fmt: skip
+        header = (
+            "video,stiffness,density"
+            if rng.random() < 0.8
+            else "".join(rng.choice(_ALPHABET, size=int(rng.integers(0, 20))))
+        )
+        rows = [
+            "".join(rng.choice(_ALPHABET, size=int(rng.integers(0, 30))))
+            for _ in range(int(rng.integers(0, 5)))
+        ]
         if rng.random() < 0.5:
             rows.append(f"f{int(rng.integers(0, 3))}.mp4,{rng.normal():.3g},{rng.normal():.3g}")
         data = "\n".join([header, *rows]).encode("utf-8", errors="surrogatepass")

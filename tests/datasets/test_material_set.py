@@ -83,23 +83,28 @@ def test_another_set_enters_the_spec_and_its_keys():
     with pytest.raises(ValueError, match=r"classes must be in \[0, 1\], got \[53\]"):
         tiny_spec(classes=(0, 53), material_set=TWO)
     cfg = _compose(
-        "material_set.name=two", "material_set.stretch_multipliers=[1,10]",
-        "material_set.bend_multipliers=[0.5]", "classes=[1]",
-    )  # fmt: skip
+        "material_set.name=two",
+        "material_set.stretch_multipliers=[1,10]",
+        "material_set.bend_multipliers=[0.5]",
+        "classes=[1]",
+    )
     assert spec_from_config(cfg).material_set == TWO and spec_from_config(cfg).classes == (1,)
 
 
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["material_set.bend_multipliers=[2,1]"], "material_set.bend_multipliers must be a "
-         "non-empty, strictly increasing list of numbers > 0, got [2, 1]"),
+        (
+            ["material_set.bend_multipliers=[2,1]"],
+            "material_set.bend_multipliers must be a "
+            "non-empty, strictly increasing list of numbers > 0, got [2, 1]",
+        ),
         (["material_set.stretch_multipliers=[]"], "material_set.stretch_multipliers must be"),
         (["material_set.basis=silk"], "material_set.basis must be one of"),
         (["+material_set.colour=red"], "material_set needs ['name', 'basis', "),
         (["classes=[54]"], r"classes[0] must be an integer class id in [0, 53], got 54"),
     ],
-)  # fmt: skip
+)
 def test_bad_material_sets_are_named(overrides, message):
     with pytest.raises(ValueError) as info:
         spec_from_config(_compose(*overrides))

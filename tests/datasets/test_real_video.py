@@ -92,8 +92,10 @@ def test_videos_in_a_videos_subfolder_are_found(tmp_path):
     )
     data = RealVideoDataset(tmp_path, clip_len=4, clip_stride=4, size=16)
     assert [v.path for v in data.videos] == [
-        tmp_path / "videos" / "a.mp4", tmp_path / "videos" / "b.mp4", tmp_path / "c.mp4",
-    ]  # fmt: skip
+        tmp_path / "videos" / "a.mp4",
+        tmp_path / "videos" / "b.mp4",
+        tmp_path / "c.mp4",
+    ]
     assert (data.used_count, data.skipped_count) == (3, 0)
     assert data[len(data) - 1]["video_name"] == "c.mp4"
     _fabrics(tmp_path / "videos", ["c.mp4"])  # the same name in both places is ambiguous

@@ -100,8 +100,9 @@ def test_rgb_layers_round_trip_beside_coverage(tmp_path):
     assert reader.read_layer("c", "uvm", 2) is None
     assert np.array_equal(reader.read("c")[1], clip)
     with pytest.raises(ValueError, match="layer 'white' of clip 'd'"):
-        write_shard(tmp_path / "b.tar", [("d", {"frame_count": 2}, clip, None,
-                                          {"white": white[:, :3]})])  # fmt: skip
+        write_shard(
+            tmp_path / "b.tar", [("d", {"frame_count": 2}, clip, None, {"white": white[:, :3]})]
+        )
     with pytest.raises(ValueError, match="layer name"):
         write_shard(tmp_path / "b.tar", [("d", {"frame_count": 2}, clip, None, {"00": white})])
     assert not (tmp_path / "b.tar").exists()

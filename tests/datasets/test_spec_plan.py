@@ -116,8 +116,16 @@ def test_visual_effects_added_later_leave_old_keys_alone():
     assert on["visual"]["vignetting"] is True and on["visual"]["vignetting_strength"] == 0.3
     stronger = tiny_spec(visual=VisualEffects(vignetting_strength=0.5))
     assert stronger.to_json()["visual"]["vignetting_strength"] == 0.5
-    assert len({tiny_spec().key(), stronger.key(), tiny_spec(visual=VisualEffects(
-        vignetting=True)).key()}) == 3  # fmt: skip
+    assert (
+        len(
+            {
+                tiny_spec().key(),
+                stronger.key(),
+                tiny_spec(visual=VisualEffects(vignetting=True)).key(),
+            }
+        )
+        == 3
+    )
     assert stronger.physics_key() == tiny_spec().physics_key()
     # Each later group is left out on its own: a vignetting set keeps its key when the
     # rolling shutter (added after it) is at its defaults.

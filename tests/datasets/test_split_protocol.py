@@ -30,10 +30,18 @@ def _manifest(sims_per_class=(3, 1, 2), clips_per_sim=4, classes=(0, 7, 53)) -> 
             for _ in range(count):
                 for k in range(clips_per_sim):
                     key = f"wind-c{class_id:02d}-s{s:02d}-k{k:02d}"
-                    clips.append({"key": key, "class_id": class_id, "split": split,
-                                  "stretch_index": class_id // 9, "bend_index": class_id % 9,
-                                  "sim_id": f"c{class_id:02d}-s{s:02d}", "clip_index": k,
-                                  "shard": f"{split}-unit-0000.tar"})  # fmt: skip
+                    clips.append(
+                        {
+                            "key": key,
+                            "class_id": class_id,
+                            "split": split,
+                            "stretch_index": class_id // 9,
+                            "bend_index": class_id % 9,
+                            "sim_id": f"c{class_id:02d}-s{s:02d}",
+                            "clip_index": k,
+                            "shard": f"{split}-unit-0000.tar",
+                        }
+                    )
                 s += 1
     return Manifest(root=Path("."), spec={}, spec_key="", shards=(), clips=tuple(clips))
 
@@ -84,11 +92,17 @@ def test_geometry_oracle_finds_the_class_whose_shape_is_nearest():
     manifest = _manifest()
     rng = np.random.default_rng(0)
     # Shape = class offset + small per-clip noise: every test clip's neighbour is its class.
-    geometry = {c["key"]: np.float32(c["class_id"] + 0.01 * rng.normal(size=30))
-                for c in manifest.clips}  # fmt: skip
+    geometry = {
+        c["key"]: np.float32(c["class_id"] + 0.01 * rng.normal(size=30)) for c in manifest.clips
+    }
     result = oracle_accuracy(manifest.clips_of("train"), manifest.clips_of("test"), geometry)
-    assert result == {"clips": 24, "acc": 1.0, "stretch_acc": 1.0, "bend_acc": 1.0,
-                      "same_simulation": 0.0}  # fmt: skip
+    assert result == {
+        "clips": 24,
+        "acc": 1.0,
+        "stretch_acc": 1.0,
+        "bend_acc": 1.0,
+        "same_simulation": 0.0,
+    }
     itself = oracle_accuracy(manifest.clips_of("test"), manifest.clips_of("test"), geometry)
     assert itself["same_simulation"] == 1.0
 

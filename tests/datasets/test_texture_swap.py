@@ -40,9 +40,10 @@ def test_stored_passes_rebuild_the_stored_frames(passes_dataset):
         )
         np.testing.assert_array_equal(layers["background"][0], background)
         texture = make_texture(
-            spec["texture_mode"], np.random.default_rng([record["seed"], _TEXTURE_STREAM]),
+            spec["texture_mode"],
+            np.random.default_rng([record["seed"], _TEXTURE_STREAM]),
             spec["texture_size"],
-        )  # fmt: skip
+        )
         passes = (layers[name] for name in PASS_NAMES)
         rebuilt = retexture(*passes, clips.read_coverage(index), background, texture)
         assert np.abs(rebuilt.astype(int) - frames).max(-1).mean() < 2.0

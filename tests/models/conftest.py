@@ -11,9 +11,14 @@ from tests.datasets.conftest import tiny_spec, write_mp4
 
 # 2 classes x 4 simulations (2 train, 1 val, 1 test), 4-frame 32 x 32 clips.
 MODEL_PRESET = SizePreset(
-    "tiny", sims_per_class=4, clips_per_sim=1, val_sims_per_class=1, test_sims_per_class=1,
-    frames_per_clip=4, fps=15.0,
-)  # fmt: skip
+    "tiny",
+    sims_per_class=4,
+    clips_per_sim=1,
+    val_sims_per_class=1,
+    test_sims_per_class=1,
+    frames_per_clip=4,
+    fps=15.0,
+)
 
 
 @pytest.fixture(scope="session")
@@ -40,10 +45,14 @@ def real_folder(tmp_path):
 
 TINY_NET = {
     "_target_": "models.components.video_nets.CNNLSTMNet",
-    "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
-                "name": "alexnet5", "feature_dim": 16, "width": 0.25},
+    "encoder": {
+        "_target_": "models.components.frame_encoder.FrameEncoder",
+        "name": "alexnet5",
+        "feature_dim": 16,
+        "width": 0.25,
+    },
     "hidden_size": 8,
-}  # fmt: skip
+}
 
 
 def write_checkpoint(path, classes=54):
@@ -82,8 +91,10 @@ def fabric_folder(tmp_path):
             base = rng.integers(0, 255, size=(24, 32, 3), dtype=np.uint8)
             frames = np.stack([np.roll(base, (f + w + 1) * t, axis=1) for t in range(8)])
             write_mp4(root / "videos" / f"f{f}_w{w + 1}.mp4", frames, 15.0)
-            rows.append(f"f{f}_w{w + 1}.mp4,fabric{f},{1.0 + f},{0.1 + 0.05 * f**2},"
-                        f"{(f - 2.5) ** 2},W{w + 1}")  # fmt: skip
+            rows.append(
+                f"f{f}_w{w + 1}.mp4,fabric{f},{1.0 + f},{0.1 + 0.05 * f**2},"
+                f"{(f - 2.5) ** 2},W{w + 1}"
+            )
     short = np.zeros((2, 24, 32, 3), dtype=np.uint8)
     write_mp4(root / "videos" / "short.mp4", short, 15.0)
     rows.append("short.mp4,fabric9,9.0,0.9,1.0,W1")

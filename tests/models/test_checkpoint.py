@@ -43,8 +43,14 @@ class _Payload:
 def _pickled_payload(path, marker):
     """A checkpoint that looks like ours but runs ``os.makedirs`` when unpickled unsafely."""
     module = load_classifier(write_checkpoint(path.parent / "good.ckpt"))
-    torch.save({"hyper_parameters": {"net_config": {**TINY_NET, "num_classes": 54}},
-                "state_dict": module.state_dict(), "extra": _Payload(marker)}, path)  # fmt: skip
+    torch.save(
+        {
+            "hyper_parameters": {"net_config": {**TINY_NET, "num_classes": 54}},
+            "state_dict": module.state_dict(),
+            "extra": _Payload(marker),
+        },
+        path,
+    )
     return path
 
 
@@ -119,8 +125,10 @@ def test_train_refuses_a_hostile_resume_or_init_from(tmp_path, model_dataset):
 
     marker = tmp_path / "payload-ran"
     path = _pickled_payload(tmp_path / "hostile.ckpt", marker)
-    for override, field in ((f"ckpt_path={path}", "ckpt_path:"), (f"init_from={path}",
-                                                                  "init_from:")):  # fmt: skip
+    for override, field in (
+        (f"ckpt_path={path}", "ckpt_path:"),
+        (f"init_from={path}", "init_from:"),
+    ):
         run = tmp_path / field.rstrip(":")
         cfg = _train_cfg(model_dataset, run, override, "test=false")
         _refused(lambda cfg=cfg: train_entry.train(cfg), marker, field, "os.makedirs")
@@ -144,8 +152,13 @@ def _run_config(tmp_path, target):
 
 def test_a_run_config_with_a_foreign_target_is_refused_before_anything_is_built(tmp_path):
     run = _run_config(tmp_path, "os.makedirs")
-    message = _refused(lambda: shrink._run_config(run), tmp_path / "payload-ran",
-                       "run: config", "callbacks.sneaky._target_", "os.makedirs")  # fmt: skip
+    message = _refused(
+        lambda: shrink._run_config(run),
+        tmp_path / "payload-ran",
+        "run: config",
+        "callbacks.sneaky._target_",
+        "os.makedirs",
+    )
     assert "lightning.pytorch.callbacks.EarlyStopping" in message  # the allowed names
 
 

@@ -103,8 +103,10 @@ def test_each_evaluation_gets_its_own_folder(run_dir, fabric_folder):
     assert (first / "real.json").read_bytes() == first_report
     assert (run_dir / "eval" / "sim_test.json").read_bytes() == training_report
     assert json.loads((second / "evaluation.json").read_text())["real"]["columns"] == [
-        "stiffness", "density", "bending_rigidity",
-    ]  # fmt: skip
+        "stiffness",
+        "density",
+        "bending_rigidity",
+    ]
 
     # Same inputs, same folder: refused rather than rewritten, unless asked for.
     with pytest.raises(InputError, match=r"already holds the evaluation .* overwrite=true"):
@@ -144,12 +146,19 @@ def test_command_line_user_errors_print_one_line(tmp_path, fabric_folder):
         (good, "real.columns=[stiffness,bend]", "lacks column(s) ['bend']; it has ['video',"),
     ]
     for ckpt, override, message in cases:
-        args = [f"ckpt_path={ckpt}", f"real_dir={fabric_folder}", override,
-                f"hydra.run.dir={tmp_path}/hydra"]  # fmt: skip
+        args = [
+            f"ckpt_path={ckpt}",
+            f"real_dir={fabric_folder}",
+            override,
+            f"hydra.run.dir={tmp_path}/hydra",
+        ]
         done = subprocess.run(
             [sys.executable, "-m", "models.evaluate", *args],
-            capture_output=True, text=True, timeout=300, cwd=ROOT,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=300,
+            cwd=ROOT,
+        )
         assert done.returncode == 2, done.stderr
         last = done.stderr.strip().splitlines()[-1]
         assert last.startswith("error: ") and message in last, last
@@ -169,8 +178,10 @@ def test_wind_levels_are_reported_as_w1_w2_w3():
 def test_predict_runs_the_module_through_lightnings_test_loop(tmp_path):
     module = evaluate.load_classifier(write_checkpoint(tmp_path / "run" / "best.ckpt"))
     generator = torch.Generator().manual_seed(0)
-    clips = [{"video": torch.rand(4, 3, 32, 32, generator=generator), "label": i, "key": f"k{i}"}
-             for i in range(5)]  # fmt: skip
+    clips = [
+        {"video": torch.rand(4, 3, 32, 32, generator=generator), "label": i, "key": f"k{i}"}
+        for i in range(5)
+    ]
     cpu = torch.device("cpu")
     logits, meta = evaluate.predict(module, clips, batch_size=2, device=cpu, class_count=54)
     with torch.no_grad():
@@ -214,14 +225,19 @@ def test_a_video_replaced_with_the_same_size_and_time_is_another_input(tmp_path,
 @pytest.mark.parametrize(
     ("rows", "message"),
     [
-        (["f0_w1.mp4,1,0.2", "f1_w1.mp4,1,0.2", "f2_w1.mp4,1,0.2"],
-         r"every measured column of .* has one value for all 3 videos \(stiffness = 1, density"),
-        (["f0_w1.mp4,1,0.2", "f1_w1.mp4,2,0.3", "short.mp4,3,0.4"],
-         r"2 of the 3 videos listed in .* are long enough for a clip; .* at least 3"),
+        (
+            ["f0_w1.mp4,1,0.2", "f1_w1.mp4,1,0.2", "f2_w1.mp4,1,0.2"],
+            r"every measured column of .* has one value for all 3 videos \(stiffness = 1, density",
+        ),
+        (
+            ["f0_w1.mp4,1,0.2", "f1_w1.mp4,2,0.3", "short.mp4,3,0.4"],
+            r"2 of the 3 videos listed in .* are long enough for a clip; .* at least 3",
+        ),
     ],
-)  # fmt: skip
-def test_footage_that_cannot_be_correlated_is_refused(rows, message, tmp_path, fabric_folder,
-                                                      monkeypatch):  # fmt: skip
+)
+def test_footage_that_cannot_be_correlated_is_refused(
+    rows, message, tmp_path, fabric_folder, monkeypatch
+):
     def must_not_run(*args, **kwargs):
         raise AssertionError("predict ran on footage that cannot be correlated")
 

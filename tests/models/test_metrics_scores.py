@@ -100,8 +100,9 @@ def test_grouped_bootstrap_counts_fabrics_not_videos():
     y = 0.6 * x + rng.normal(scale=0.8, size=10)
     fabrics = correlate(x, y, rounds=400, seed=2)
     videos = np.repeat(x, 3), np.repeat(y, 3)
-    grouped = correlate(*videos, groups=np.repeat([f"fabric{i}" for i in range(10)], 3),
-                        rounds=400, seed=2)  # fmt: skip
+    grouped = correlate(
+        *videos, groups=np.repeat([f"fabric{i}" for i in range(10)], 3), rounds=400, seed=2
+    )
     assert (grouped.count, grouped.group_count) == (30, 10)
     for field in ("pearson", "pearson_p", "spearman", "spearman_p"):
         assert getattr(grouped, field) == pytest.approx(getattr(fabrics, field)), field

@@ -45,8 +45,9 @@ def test_lstm_readouts_and_order_sensitivity():
     torch.manual_seed(0)
     video = _clips(steps=5)
     for readout in ("mean", "last"):
-        net = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0),
-                         hidden_size=8, readout=readout).eval()  # fmt: skip
+        net = CNNLSTMNet(
+            FrameEncoder(feature_dim=8, width=0.25, dropout=0.0), hidden_size=8, readout=readout
+        ).eval()
         reversed_video = video.flip(1)
         assert not torch.allclose(net(video), net(reversed_video))  # it sees the order
 
@@ -76,8 +77,9 @@ def test_frame_differences_values_and_invariance_to_static_content():
     moving = _clips(steps=4)
     static = torch.rand(1, 1, 3, 64, 64).clamp(0, 0.5)  # a texture that does not move
     torch.manual_seed(0)
-    net = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0), hidden_size=8,
-                     inputs="frame_diff").eval()  # fmt: skip
+    net = CNNLSTMNet(
+        FrameEncoder(feature_dim=8, width=0.25, dropout=0.0), hidden_size=8, inputs="frame_diff"
+    ).eval()
     still = static.expand(2, 4, 3, 64, 64)
     brighter = still + 0.3  # another static background: the same (zero) differences
     torch.testing.assert_close(net(still), net(brighter))
@@ -89,18 +91,24 @@ def test_frame_differences_values_and_invariance_to_static_content():
 def test_two_stream_reads_frames_and_differences_from_their_own_checkpoints(tmp_path):
     torch.manual_seed(0)
     base1 = FramePoolNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0))
-    diff = CNNLSTMNet(FrameEncoder(feature_dim=6, width=0.25, dropout=0.0), hidden_size=8,
-                      inputs="frame_diff")  # fmt: skip
+    diff = CNNLSTMNet(
+        FrameEncoder(feature_dim=6, width=0.25, dropout=0.0), hidden_size=8, inputs="frame_diff"
+    )
     paths = {}
     for name, net in (("base1", base1), ("diff", diff)):
         paths[name] = tmp_path / f"{name}.ckpt"
-        torch.save({"state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}},
-                   paths[name])  # fmt: skip
+        torch.save(
+            {"state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, paths[name]
+        )
     torch.manual_seed(1)
-    net = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25, dropout=0.0), hidden_size=8,
-                     inputs="two_stream", encoder_checkpoint=str(paths["base1"]),
-                     motion_encoder=FrameEncoder(feature_dim=6, width=0.25, dropout=0.0),
-                     motion_encoder_checkpoint=str(paths["diff"])).eval()  # fmt: skip
+    net = CNNLSTMNet(
+        FrameEncoder(feature_dim=8, width=0.25, dropout=0.0),
+        hidden_size=8,
+        inputs="two_stream",
+        encoder_checkpoint=str(paths["base1"]),
+        motion_encoder=FrameEncoder(feature_dim=6, width=0.25, dropout=0.0),
+        motion_encoder_checkpoint=str(paths["diff"]),
+    ).eval()
     assert net.lstm.input_size == 8 + 6
     for mine, theirs in ((net.encoder, base1.encoder), (net.motion_encoder, diff.encoder)):
         for key, value in theirs.state_dict().items():
@@ -116,13 +124,14 @@ def test_two_stream_reads_frames_and_differences_from_their_own_checkpoints(tmp_
         moved = video.detach().clone()
         moved[:, 0] = 1 - moved[:, 0]
         assert not torch.allclose(net(moved), net(video))
-        torch.testing.assert_close(net.encoder(moved[:, 1:].flatten(0, 1)).view(2, 3, -1),
-                                   features)  # fmt: skip
+        torch.testing.assert_close(net.encoder(moved[:, 1:].flatten(0, 1)).view(2, 3, -1), features)
     with pytest.raises(ValueError, match="motion_encoder is needed"):
         CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25), inputs="two_stream")
     with pytest.raises(ValueError, match="motion_encoder is needed"):
-        CNNLSTMNet(FrameEncoder(feature_dim=4, width=0.25),
-                   motion_encoder=FrameEncoder(feature_dim=4, width=0.25))  # fmt: skip
+        CNNLSTMNet(
+            FrameEncoder(feature_dim=4, width=0.25),
+            motion_encoder=FrameEncoder(feature_dim=4, width=0.25),
+        )
 
 
 def test_the_class_count_is_an_argument_of_every_net():
@@ -154,8 +163,12 @@ def test_frozen_encoder_from_checkpoint_gets_no_gradient_and_stays_in_eval(tmp_p
     path = tmp_path / "base1.ckpt"
     torch.save({"state_dict": {f"net.{k}": v for k, v in base1.state_dict().items()}}, path)
     torch.manual_seed(1)
-    base2 = CNNLSTMNet(FrameEncoder(feature_dim=8, width=0.25), hidden_size=8,
-                       freeze_encoder=True, encoder_checkpoint=str(path))  # fmt: skip
+    base2 = CNNLSTMNet(
+        FrameEncoder(feature_dim=8, width=0.25),
+        hidden_size=8,
+        freeze_encoder=True,
+        encoder_checkpoint=str(path),
+    )
     for key, value in base1.encoder.state_dict().items():
         torch.testing.assert_close(base2.encoder.state_dict()[key], value, msg=key)
     base2.train()

@@ -18,10 +18,16 @@ from tests.models.conftest import write_checkpoint
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
 FAST = [
-    "encoder.width=0.25", "encoder.feature_dim=16",
-    "data.batch_size=2", "data.num_workers=0", "trainer.max_epochs=2", "~logger",
-    "callbacks.progress_bar=null", "callbacks.lr_monitor=null", "trainer.log_every_n_steps=1",
-]  # fmt: skip
+    "encoder.width=0.25",
+    "encoder.feature_dim=16",
+    "data.batch_size=2",
+    "data.num_workers=0",
+    "trainer.max_epochs=2",
+    "~logger",
+    "callbacks.progress_bar=null",
+    "callbacks.lr_monitor=null",
+    "trainer.log_every_n_steps=1",
+]
 
 
 def _compose(config="train", overrides=(), hydra=False):
@@ -36,11 +42,17 @@ def _options(group):
 
 
 def _train_cfg(data_dir, out_dir, *overrides, log_dir=None):
-    return _compose("train", [
-        f"dataset.dir={data_dir}", f"paths.output_dir={out_dir}",
-        f"paths.log_dir={log_dir or out_dir.parent}", f"paths.work_dir={out_dir}", *FAST,
-        *overrides,
-    ])  # fmt: skip
+    return _compose(
+        "train",
+        [
+            f"dataset.dir={data_dir}",
+            f"paths.output_dir={out_dir}",
+            f"paths.log_dir={log_dir or out_dir.parent}",
+            f"paths.work_dir={out_dir}",
+            *FAST,
+            *overrides,
+        ],
+    )
 
 
 @pytest.mark.parametrize("protocol", _options("protocol"))
@@ -83,19 +95,28 @@ def test_every_experiment_composes_and_builds_its_model(method, dataset, protoco
 )
 def test_the_sequence_protocol_sets_each_methods_schedule(method, epochs, encoder_lr_scale):
     for dataset in _options("dataset"):
-        cfg = _compose("train", [f"experiment=train/{method}", f"dataset={dataset}",
-                                 "protocol=sequence", "paths.output_dir=/tmp/x"])  # fmt: skip
+        cfg = _compose(
+            "train",
+            [
+                f"experiment=train/{method}",
+                f"dataset={dataset}",
+                "protocol=sequence",
+                "paths.output_dir=/tmp/x",
+            ],
+        )
         assert cfg.trainer.max_epochs == epochs
         assert cfg.model.encoder_lr_scale == encoder_lr_scale
-        held_out = _compose("train", [f"experiment=train/{method}", f"dataset={dataset}",
-                                      "paths.output_dir=/tmp/x"])  # fmt: skip
+        held_out = _compose(
+            "train", [f"experiment=train/{method}", f"dataset={dataset}", "paths.output_dir=/tmp/x"]
+        )
         assert held_out.trainer.max_epochs == 20 and held_out.model.encoder_lr_scale == 1.0
 
 
 def test_the_readme_recipe_is_diff_v_on_the_wind_grid_data():
     assert "wind_grid_diff" in _options("experiment/recipe")
-    cfg = _compose("train", ["experiment=recipe/wind_grid_diff", "paths.output_dir=/tmp/x"],
-                   hydra=True)  # fmt: skip
+    cfg = _compose(
+        "train", ["experiment=recipe/wind_grid_diff", "paths.output_dir=/tmp/x"], hydra=True
+    )
     assert cfg.run_name == "wind-L1-grid-full-s0-cnn_lstm_diff"
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
     assert cfg.data.split_protocol == "simulation" and cfg.trainer.max_epochs == 20
@@ -108,9 +129,17 @@ def test_the_readme_recipe_is_diff_v_on_the_wind_grid_data():
 @pytest.mark.parametrize("variant", ["bgswap", "texswap"])
 @pytest.mark.parametrize(("method", "dataset"), [("base2", "wind"), ("cnn_lstm_ft", "arm")])
 def test_swap_variants_have_runs_of_their_own(method, dataset, variant, protocol):
-    cfg = _compose("train", [f"experiment=train/{method}", f"dataset={dataset}",
-                             f"protocol={protocol}", f"variant={variant}",
-                             "paths.output_dir=/tmp/x"], hydra=True)  # fmt: skip
+    cfg = _compose(
+        "train",
+        [
+            f"experiment=train/{method}",
+            f"dataset={dataset}",
+            f"protocol={protocol}",
+            f"variant={variant}",
+            "paths.output_dir=/tmp/x",
+        ],
+        hydra=True,
+    )
     tag = ("-seq" if protocol == "sequence" else "") + f"-{variant}"  # apart from -seq, -<variant>
     assert cfg.run_name == f"{cfg.dataset.name}{tag}-{cfg.model.method}"
     assert cfg.hydra.run.dir.endswith(f"/train/{cfg.run_name}")
@@ -134,9 +163,16 @@ def test_missing_data_directory_fails_clearly(tmp_path):
 
 
 def test_encoder_lr_scale_gives_the_cnn_its_own_rate_through_the_schedule():
-    cfg = _compose("train", ["model=cnn_lstm", "model.encoder_lr_scale=0.1",
-                             "trainer.max_epochs=4", "paths.output_dir=/tmp/x",
-                             "+model.net.num_classes=54"])  # fmt: skip
+    cfg = _compose(
+        "train",
+        [
+            "model=cnn_lstm",
+            "model.encoder_lr_scale=0.1",
+            "trainer.max_epochs=4",
+            "paths.output_dir=/tmp/x",
+            "+model.net.num_classes=54",
+        ],
+    )
     module = instantiate(cfg.model)
     config = module.configure_optimizers()
     optimizer, scheduler = config["optimizer"], config["lr_scheduler"]["scheduler"]
@@ -147,8 +183,10 @@ def test_encoder_lr_scale_gives_the_cnn_its_own_rate_through_the_schedule():
     optimizer.step()
     scheduler.step()
     assert cnn["lr"] / rest["lr"] == pytest.approx(0.1) and rest["lr"] < 2e-3
-    plain = instantiate(_compose("train", ["model=cnn_lstm", "paths.output_dir=/tmp/x"]).model,
-                        net={"num_classes": 54})  # fmt: skip
+    plain = instantiate(
+        _compose("train", ["model=cnn_lstm", "paths.output_dir=/tmp/x"]).model,
+        net={"num_classes": 54},
+    )
     assert len(plain.configure_optimizers()["optimizer"].param_groups) == 1
     for bad in (0.0, 1.5, True):
         with pytest.raises(Exception, match=r"model.encoder_lr_scale must be in \(0, 1\]"):
@@ -158,10 +196,18 @@ def test_encoder_lr_scale_gives_the_cnn_its_own_rate_through_the_schedule():
 @pytest.mark.parametrize("model", ["cnn_lstm", "base1"])
 def test_tiny_batch_is_overfit(model):
     torch.manual_seed(0)
-    cfg = _compose("train", [f"model={model}", "encoder.width=0.25", "encoder.dropout=0.0",
-                             "encoder.feature_dim=32",
-                             "model.label_smoothing=0.0", "paths.output_dir=/tmp/x",
-                             "+model.net.num_classes=54"])  # fmt: skip
+    cfg = _compose(
+        "train",
+        [
+            f"model={model}",
+            "encoder.width=0.25",
+            "encoder.dropout=0.0",
+            "encoder.feature_dim=32",
+            "model.label_smoothing=0.0",
+            "paths.output_dir=/tmp/x",
+            "+model.net.num_classes=54",
+        ],
+    )
     module = instantiate(cfg.model)
     video = torch.rand(6, 3, 3, 48, 48, generator=torch.Generator().manual_seed(0))
     labels = torch.tensor([0, 7, 19, 26, 40, 53])
@@ -222,9 +268,14 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
     # A second stage starts from a run's weights (init_from) on its own schedule: at lr 0 the
     # trained parameters stay exactly those of the checkpoint it started from.
     stage2 = logs / "train" / "tiny-stage2-cnn_lstm"
-    cfg_stage2 = _train_cfg(model_dataset, stage2, f"init_from={best}",
-                            "model.optimizer.lr=0.0", "model.optimizer.weight_decay=0.0",
-                            log_dir=logs)  # fmt: skip
+    cfg_stage2 = _train_cfg(
+        model_dataset,
+        stage2,
+        f"init_from={best}",
+        "model.optimizer.lr=0.0",
+        "model.optimizer.weight_decay=0.0",
+        log_dir=logs,
+    )
     train_entry.train(cfg_stage2)
     after = load_classifier(stage2 / "checkpoints" / "best.ckpt")
     for name, value in after.named_parameters():
@@ -237,20 +288,34 @@ def test_train_evaluate_reload_and_baselines_end_to_end(model_dataset, real_fold
 
     # The two-stream model, trained over swapped backgrounds, rebuilds from its checkpoint.
     two = logs / "train" / "tiny-cnn_lstm_2s"
-    cfg3 = _train_cfg(model_dataset, two, "model=cnn_lstm_2s", encoder,
-                      f"model.net.motion_encoder_checkpoint={best}",
-                      "data.background_swap.prob=1.0", log_dir=logs)  # fmt: skip
+    cfg3 = _train_cfg(
+        model_dataset,
+        two,
+        "model=cnn_lstm_2s",
+        encoder,
+        f"model.net.motion_encoder_checkpoint={best}",
+        "data.background_swap.prob=1.0",
+        log_dir=logs,
+    )
     assert 0.0 <= train_entry.train(cfg3)["test/acc"] <= 1.0
     rebuilt = load_classifier(two / "checkpoints" / "best.ckpt")
     assert rebuilt.net.inputs == "two_stream" and rebuilt(clip).shape == (2, 54)
 
     # The evaluation entry on the simulated test split and on real videos.
     out = tmp_path / "eval"
-    cfg = _compose("evaluate", [
-        f"ckpt_path={best}", f"data_dir={model_dataset}", f"real_dir={real_folder}",
-        f"out_dir={out}", "real.clip_len=4", "real.clip_stride=4", "real.size=32",
-        "bootstrap.rounds=50",
-    ])  # fmt: skip
+    cfg = _compose(
+        "evaluate",
+        [
+            f"ckpt_path={best}",
+            f"data_dir={model_dataset}",
+            f"real_dir={real_folder}",
+            f"out_dir={out}",
+            "real.clip_len=4",
+            "real.clip_stride=4",
+            "real.size=32",
+            "bootstrap.rounds=50",
+        ],
+    )
     training_report = (run / "eval" / "sim_test.json").read_bytes()
     results = evaluate_run(cfg)
     assert results["sim"]["clips"] == 2 and results["real"]["videos"] == 4

@@ -14,18 +14,31 @@ from common.errors import InputError
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
 FAST = [
-    "encoder.width=0.25", "encoder.feature_dim=16", "data.batch_size=2", "data.num_workers=0",
-    "~logger", "callbacks.progress_bar=null", "callbacks.lr_monitor=null",
-    "trainer.log_every_n_steps=1", "test=false",
-]  # fmt: skip
+    "encoder.width=0.25",
+    "encoder.feature_dim=16",
+    "data.batch_size=2",
+    "data.num_workers=0",
+    "~logger",
+    "callbacks.progress_bar=null",
+    "callbacks.lr_monitor=null",
+    "trainer.log_every_n_steps=1",
+    "test=false",
+]
 
 
 def _train_cfg(data_dir, run, *overrides):
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        return compose(config_name="train", overrides=[
-            f"dataset.dir={data_dir}", f"paths.output_dir={run}", f"paths.log_dir={run.parent}",
-            f"paths.work_dir={run}", *FAST, *overrides,
-        ])  # fmt: skip
+        return compose(
+            config_name="train",
+            overrides=[
+                f"dataset.dir={data_dir}",
+                f"paths.output_dir={run}",
+                f"paths.log_dir={run.parent}",
+                f"paths.work_dir={run}",
+                *FAST,
+                *overrides,
+            ],
+        )
 
 
 def _sha(root: Path) -> str:
@@ -39,9 +52,13 @@ def _record(run: Path) -> list[dict]:
 def test_early_stopping_says_when_and_why_training_ended(model_dataset, tmp_path, caplog):
     # min_delta 2 on an accuracy: no epoch after the first can improve, patience 1 stops it.
     run = tmp_path / "train" / "early"
-    cfg = _train_cfg(model_dataset, run, "trainer.max_epochs=4",
-                     "callbacks.early_stopping.patience=1",
-                     "callbacks.early_stopping.min_delta=2.0")  # fmt: skip
+    cfg = _train_cfg(
+        model_dataset,
+        run,
+        "trainer.max_epochs=4",
+        "callbacks.early_stopping.patience=1",
+        "callbacks.early_stopping.min_delta=2.0",
+    )
     with caplog.at_level(logging.INFO, logger="models.training"):
         train_entry.train(cfg)
     (message,) = [r.getMessage() for r in caplog.records if "early stopping" in r.getMessage()]

@@ -43,8 +43,9 @@ def test_before_image_effects_keeps_what_the_renderer_draws_and_resets_the_rest(
     fields = {f.name: f for f in dataclasses.fields(VisualEffects)}
     assert set(IMAGE_EFFECT_PARAMETERS) <= set(fields)
     # Every strength of an image effect is one of its parameters.
-    assert {n for n, f in fields.items()
-            if f.metadata.get("strength_of") in IMAGE_EFFECT_ORDER} <= set(IMAGE_EFFECT_PARAMETERS)
+    assert {
+        n for n, f in fields.items() if f.metadata.get("strength_of") in IMAGE_EFFECT_ORDER
+    } <= set(IMAGE_EFFECT_PARAMETERS)
     # The renderer reads none of them (it hands them to apply_image_effects whole).
     from pathlib import Path
 
@@ -53,9 +54,13 @@ def test_before_image_effects_keeps_what_the_renderer_draws_and_resets_the_rest(
     source = Path(render.renderer.__file__).read_text()
     assert not [n for n in IMAGE_EFFECT_PARAMETERS if f"effects.{n}" in source]
     everything = VisualEffects(
-        **dict.fromkeys(EFFECT_NAMES, True), noise_read_sigma=6.0, jpeg_quality=20,
-        frame_rate_ratio=2.0, specular_roughness=0.2, shake_translation=0.01,
-    )  # fmt: skip
+        **dict.fromkeys(EFFECT_NAMES, True),
+        noise_read_sigma=6.0,
+        jpeg_quality=20,
+        frame_rate_ratio=2.0,
+        specular_roughness=0.2,
+        shake_translation=0.01,
+    )
     base = everything.before_image_effects()
     assert not any(getattr(base, n) for n in IMAGE_EFFECT_ORDER)
     assert all(getattr(base, n) for n in RENDER_EFFECTS)
@@ -170,8 +175,18 @@ def test_effect_streams_are_independent_of_other_switches(clip):
 
 def test_a_deterministic_effect_leaves_every_stream_as_before():
     """Streams are the draws of the ten effects that existed before vignetting, in order."""
-    before = ("motion_blur", "sensor_noise", "compression", "lighting_variation", "specular",
-              "shadows", "camera_shake", "defocus_blur", "white_balance", "frame_rate")  # fmt: skip
+    before = (
+        "motion_blur",
+        "sensor_noise",
+        "compression",
+        "lighting_variation",
+        "specular",
+        "shadows",
+        "camera_shake",
+        "defocus_blur",
+        "white_balance",
+        "frame_rate",
+    )
     assert RANDOM_EFFECTS == before
     seeds = np.random.default_rng(7).integers(0, np.iinfo(np.int64).max, size=len(before))
     streams = effect_streams(np.random.default_rng(7))

@@ -44,8 +44,16 @@ def _scene(arm: bool):
 
 def _render(renderer, scene, texture, **kwargs):
     clip, tri, uv, capsules, background = scene
-    return renderer.render_clip(clip, tri, uv, texture, background, capsules=capsules,
-                                rng=np.random.default_rng(0), **kwargs)  # fmt: skip
+    return renderer.render_clip(
+        clip,
+        tri,
+        uv,
+        texture,
+        background,
+        capsules=capsules,
+        rng=np.random.default_rng(0),
+        **kwargs,
+    )
 
 
 @pytest.mark.parametrize("arm", [False, True])
@@ -105,8 +113,15 @@ def test_passes_refuse_resampled_frames_and_retexture_checks_shapes(cloth):
     effects = dataclasses.replace(VisualEffects(), frame_rate=True)
     camera = CameraSpec(position=(0.0, -1.2, 0.75), look_at=(0.0, 0.0, 0.75), width=16, height=16)
     with ClothRenderer(camera, effects=effects) as r, pytest.raises(ValueError, match="frame_rate"):
-        r.render_clip(np.stack([pos, pos]), tri, uv, np.zeros((8, 8, 3), np.uint8), None,
-                      rng=np.random.default_rng(0), passes=True)  # fmt: skip
+        r.render_clip(
+            np.stack([pos, pos]),
+            tri,
+            uv,
+            np.zeros((8, 8, 3), np.uint8),
+            None,
+            rng=np.random.default_rng(0),
+            passes=True,
+        )
     clip = np.zeros((2, 4, 4, 3), np.uint8)
     cover = np.zeros((2, 4, 4), np.uint8)
     texture = np.zeros((8, 8, 3), np.uint8)

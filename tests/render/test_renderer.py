@@ -318,10 +318,12 @@ def test_input_validation(renderer, cloth):
 def test_coverage_is_the_alpha_each_frame_was_composited_with(renderer, cloth):
     pos, tri, uv = cloth
     clip = np.stack([pos, pos + np.array([0.05, 0.0, 0.0])])
-    frames, cover = renderer.render_clip(clip, tri, uv, WHITE, _background(), rng=_rng(),
-                                         coverage=True)  # fmt: skip
-    np.testing.assert_array_equal(frames, renderer.render_clip(clip, tri, uv, WHITE, _background(),
-                                                               rng=_rng()))  # fmt: skip
+    frames, cover = renderer.render_clip(
+        clip, tri, uv, WHITE, _background(), rng=_rng(), coverage=True
+    )
+    np.testing.assert_array_equal(
+        frames, renderer.render_clip(clip, tri, uv, WHITE, _background(), rng=_rng())
+    )
     assert cover.dtype == np.uint8 and cover.shape == frames.shape[:3]
     assert (cover == 255).mean() > 0.1 and (cover == 0).mean() > 0.1
     assert not np.array_equal(cover[0], cover[1]), "coverage moves with the cloth"
@@ -362,9 +364,7 @@ def test_render_sequence_draws_the_arm():
     seq = with_capsules(bare_seq)
     with ClothRenderer(CameraSpec.arm(48, 48)) as r:
         frames = r.render_sequence(seq, 0, WHITE, _background(), _rng())
-        given = r.render_sequence(
-            bare_seq, 0, WHITE, _background(), _rng(), capsules=seq.capsules
-        )
+        given = r.render_sequence(bare_seq, 0, WHITE, _background(), _rng(), capsules=seq.capsules)
         np.testing.assert_array_equal(given, frames)
         with pytest.raises(ValueError, match="carries no capsules"):
             r.render_sequence(bare_seq, 0, WHITE, _background(), _rng())

@@ -5,21 +5,49 @@ import dataclasses
 from sim2real.result import Diagnosis, DiagnosisInputs
 
 RANKING = {
-    "ranking": [], "threshold": 0.6, "null_score": 0.0, "explained": False, "top": None,
-    "kernel_rungs": [], "kernel_closure": None, "kernel_strength": None,
-    "kernel_threshold": 0.6, "look_alike": False, "neutral_in_interval": False,
-    "confusable_with_top": [], "stage_scores": {},
-}  # fmt: skip
+    "ranking": [],
+    "threshold": 0.6,
+    "null_score": 0.0,
+    "explained": False,
+    "top": None,
+    "kernel_rungs": [],
+    "kernel_closure": None,
+    "kernel_strength": None,
+    "kernel_threshold": 0.6,
+    "look_alike": False,
+    "neutral_in_interval": False,
+    "confusable_with_top": [],
+    "stage_scores": {},
+}
 LOCATION = {
-    "alpha": 0.05, "gap_p": 1.0, "threshold": 0.005, "significant": [], "bonferroni": [],
-    "first_significant_layer": None, "jump_layer": None, "jump_rise": None,
-}  # fmt: skip
+    "alpha": 0.05,
+    "gap_p": 1.0,
+    "threshold": 0.005,
+    "significant": [],
+    "bonferroni": [],
+    "first_significant_layer": None,
+    "jump_layer": None,
+    "jump_rise": None,
+}
 REPORT = {
-    "name": "test", "rungs": {}, "detection_rungs": {}, "scored_rungs": [],
-    "reference_auc": {}, "reference_classifier": {}, "candidates": {}, "null": {},
-    "residual": None, "shapley": None, "stacked": None, "counterfactuals": {},
-    "residual_stage": "", "detectability": {}, "probes": {}, "sets": {}, "timing": {},
-}  # fmt: skip
+    "name": "test",
+    "rungs": {},
+    "detection_rungs": {},
+    "scored_rungs": [],
+    "reference_auc": {},
+    "reference_classifier": {},
+    "candidates": {},
+    "null": {},
+    "residual": None,
+    "shapley": None,
+    "stacked": None,
+    "counterfactuals": {},
+    "residual_stage": "",
+    "detectability": {},
+    "probes": {},
+    "sets": {},
+    "timing": {},
+}
 
 
 def as_diagnosis(partial: dict) -> Diagnosis:

@@ -11,10 +11,12 @@ from simulator.cloth.effects import PHYSICS_EFFECT_NAMES, PhysicsEffects, streng
 from simulator.cloth.scenes import ScenarioWind
 
 SPEC = DatasetSpec(
-    motion="wind", scenario=ScenarioWind(resolution_level=1),
-    preset=SizePreset("t", sims_per_class=2, clips_per_sim=1, val_sims_per_class=0,
-                      test_sims_per_class=0),
-)  # fmt: skip
+    motion="wind",
+    scenario=ScenarioWind(resolution_level=1),
+    preset=SizePreset(
+        "t", sims_per_class=2, clips_per_sim=1, val_sims_per_class=0, test_sims_per_class=0
+    ),
+)
 
 
 def test_every_switch_of_both_registries_is_a_candidate_with_a_known_stage():

@@ -34,10 +34,12 @@ def _domain(seed, noise=0.0, blur=0.0, groups=GROUPS):
     pixel[:, NOISE] += noise
     pixel[:, SHARP] -= blur
     return LadderFeatures(
-        rungs={"pixel": pixel, "motion": motion}, groups=ids,
-        class_id=np.zeros(len(ids), int), stiffness=np.ones(len(ids)),
+        rungs={"pixel": pixel, "motion": motion},
+        groups=ids,
+        class_id=np.zeros(len(ids), int),
+        stiffness=np.ones(len(ids)),
         density=np.ones(len(ids)),
-    )  # fmt: skip
+    )
 
 
 @pytest.fixture(scope="module")
@@ -82,9 +84,10 @@ def test_a_statistic_that_other_stages_also_move_loses_specificity(camera):
 def test_an_effect_that_moves_nothing_has_no_signature():
     sim = _domain(0)
     effects = {"visual.inert": ((1.0, 2.0), [_domain(0), _domain(0)], None)}
-    assert camera_signatures(sim, effects, rng=np.random.default_rng(0))["visual.inert"][
-        "statistic"
-    ] is None
+    assert (
+        camera_signatures(sim, effects, rng=np.random.default_rng(0))["visual.inert"]["statistic"]
+        is None
+    )
 
 
 def test_r_s_camera_is_matched_at_its_strength_and_absent_effects_stay_off(camera):
@@ -117,12 +120,14 @@ def test_the_swap_closes_the_gap_of_the_emulated_stage_only():
     sim = _domain(0)
     real = _domain(5, noise=3.0)
     gaps = rung_gaps(sim, real, n_perm=99, n_boot=49, n_floor=6, seed=0)
-    closed = swap_closure(sim, real, gaps, sim_after=_domain(0, noise=3.0),
-                          rng=np.random.default_rng(0))  # fmt: skip
+    closed = swap_closure(
+        sim, real, gaps, sim_after=_domain(0, noise=3.0), rng=np.random.default_rng(0)
+    )
     assert closed["pixel"]["closure"] > 0.7
     assert closed["pixel"]["mmd2_after"] < closed["pixel"]["mmd2_before"]
-    wrong = swap_closure(sim, real, gaps, sim_after=_domain(0, blur=3.0),
-                         rng=np.random.default_rng(0))  # fmt: skip
+    wrong = swap_closure(
+        sim, real, gaps, sim_after=_domain(0, blur=3.0), rng=np.random.default_rng(0)
+    )
     assert wrong["pixel"]["closure"] < 0.1
 
 
@@ -178,22 +183,31 @@ def test_batchnorm_swap_closes_a_brightness_gap_in_the_layers():
         groups = np.repeat([f"v{i}" for i in range(len(clips) // 2)], 2)
         return LadderFeatures(
             rungs={"pixel": clips.reshape(len(clips), -1)[:, :6].astype(float), **layers},
-            groups=groups, class_id=np.zeros(len(clips), int),
-            stiffness=np.arange(len(clips), dtype=float), density=np.ones(len(clips)),
-        )  # fmt: skip
+            groups=groups,
+            class_id=np.zeros(len(clips), int),
+            stiffness=np.arange(len(clips), dtype=float),
+            density=np.ones(len(clips)),
+        )
 
     sim = ladder(adapt_source, source)
     real = ladder(adapt_source, target)
     gaps = rung_gaps(sim, real, n_perm=99, n_boot=49, n_floor=4, seed=0)
-    swap = batchnorm_swap(sim, real, ladder(adapt_batchnorm(net, target, batch_size=8), target),
-                          gaps, rng=np.random.default_rng(0))  # fmt: skip
+    swap = batchnorm_swap(
+        sim,
+        real,
+        ladder(adapt_batchnorm(net, target, batch_size=8), target),
+        gaps,
+        rng=np.random.default_rng(0),
+    )
     assert swap["available"]
     assert "pixel" not in swap["layers"]
     assert swap["layers"]["logits"]["mmd2_after"] < swap["layers"]["logits"]["mmd2_before"]
     assert set(swap["correlations"]["before"]) == {
-        f"{s}~{t}" for s in ("material_score", "stretch_score", "bend_score")
+        f"{s}~{t}"
+        for s in ("material_score", "stretch_score", "bend_score")
         for t in ("stiffness", "density")
-    }  # fmt: skip
+    }
     assert batchnorm_swap(sim, real, None, gaps, rng=np.random.default_rng(0)) == {
-        "available": False, "reason": "the network has no batch-norm layer",
-    }  # fmt: skip
+        "available": False,
+        "reason": "the network has no batch-norm layer",
+    }

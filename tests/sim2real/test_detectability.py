@@ -26,9 +26,12 @@ def _domain(seed: int, shift: float = 0.0) -> LadderFeatures:
     pixel[:, :3] += shift
     motion = rng.normal(size=(rows, DIM))
     return LadderFeatures(
-        rungs={"pixel": pixel, "motion": motion}, groups=groups,
-        class_id=np.zeros(rows, dtype=int), stiffness=np.ones(rows), density=np.ones(rows),
-    )  # fmt: skip
+        rungs={"pixel": pixel, "motion": motion},
+        groups=groups,
+        class_id=np.zeros(rows, dtype=int),
+        stiffness=np.ones(rows),
+        density=np.ones(rows),
+    )
 
 
 def _candidate(name: str, low=None, high=None) -> Candidate:
@@ -82,11 +85,14 @@ def test_verdicts_separate_inert_invisible_partly_and_visible_candidates():
     # S' as S itself: sampling noise out of the way, only the planted shifts differ
     nominal, null = _domain(0), _domain(0)
     sets = {
-        "inert@1.0": _domain(0), "inert@4.0": _domain(0),
-        "weak@0.01": _domain(0, shift=0.01), "weak@0.02": _domain(0, shift=0.02),
-        "ramp@0.01": _domain(0, shift=0.01), "ramp@2.0": _domain(0, shift=2.0),
+        "inert@1.0": _domain(0),
+        "inert@4.0": _domain(0),
+        "weak@0.01": _domain(0, shift=0.01),
+        "weak@0.02": _domain(0, shift=0.02),
+        "ramp@0.01": _domain(0, shift=0.01),
+        "ramp@2.0": _domain(0, shift=2.0),
         "switch@None": _domain(0, shift=2.0),
-    }  # fmt: skip
+    }
     plan = [
         (_candidate("inert", 1.0, 4.0), (1.0, 4.0)),
         (_candidate("weak", 0.01, 0.02), (0.01, 0.02)),
@@ -97,8 +103,11 @@ def test_verdicts_separate_inert_invisible_partly_and_visible_candidates():
         plan, sets, nominal, null, lambda c, v: f"{c.name}@{v!r}", alpha=0.05, n_perm=99, seed=0
     )
     assert {n: e["verdict"] for n, e in found.items()} == {
-        "inert": "inert", "weak": "undetected", "ramp": "partly", "switch": "detected",
-    }  # fmt: skip
+        "inert": "inert",
+        "weak": "undetected",
+        "ramp": "partly",
+        "switch": "detected",
+    }
     assert found["inert"]["p"] == [1.0, 1.0] and all(found["inert"]["inert"])
     assert found["ramp"]["detected"] == [False, True] and found["ramp"]["log_scale"]
     # the nearest strength tried decides, in log scale for a log-spaced candidate: 0.1 is
@@ -112,17 +121,33 @@ def test_verdicts_separate_inert_invisible_partly_and_visible_candidates():
 @pytest.mark.parametrize(("gap", "visible"), [(False, False), (False, True), (True, True)])
 def test_validation_splits_misses_of_power_from_misses_of_identification(gap, visible):
     result = {
-        "ranking": {"ranking": ["visual.a", "visual.b"], "top": "visual.a" if gap else None,
-                    "explained": gap},
-        "candidates": {"visual.a": {"stage": "camera", "best_score": 0.9 if gap else 0.0,
-                                    "strength_interval": [1.0, 2.0]}},
-        "scored_rungs": ["pixel"] if gap else [], "residual_stage": "camera",
-        "detectability": {"visual.a": {"strengths": [1.0, 2.0], "log_scale": False,
-                                       "detected": [visible, visible]}},
-    }  # fmt: skip
-    answer = {"seed": 1, "kind": "single",
-              "effects": [{"name": "visual.a", "stage": "camera", "strength": 1.2,
-                           "library": True}]}  # fmt: skip
+        "ranking": {
+            "ranking": ["visual.a", "visual.b"],
+            "top": "visual.a" if gap else None,
+            "explained": gap,
+        },
+        "candidates": {
+            "visual.a": {
+                "stage": "camera",
+                "best_score": 0.9 if gap else 0.0,
+                "strength_interval": [1.0, 2.0],
+            }
+        },
+        "scored_rungs": ["pixel"] if gap else [],
+        "residual_stage": "camera",
+        "detectability": {
+            "visual.a": {
+                "strengths": [1.0, 2.0],
+                "log_scale": False,
+                "detected": [visible, visible],
+            }
+        },
+    }
+    answer = {
+        "seed": 1,
+        "kind": "single",
+        "effects": [{"name": "visual.a", "stage": "camera", "strength": 1.2, "library": True}],
+    }
     row = score_set(as_diagnosis(result), answer)
     assert row["truth_detectable"] is visible
     summary = summarise([row])
@@ -142,17 +167,21 @@ def test_a_no_gap_verdict_names_the_candidates_it_could_not_rule_out():
     entry = {"strengths": [1.0], "p": [0.5], "inert": [False], "detected": [False]}
     result = {
         "location": {"significant": [], "gap_p": 0.4, "alpha": 0.05},
-        "ranking": {}, "rungs": {}, "inputs": {"sim_groups": 27},
+        "ranking": {},
+        "rungs": {},
+        "inputs": {"sim_groups": 27},
         "detectability": {
             "visual.specular": {**entry, "verdict": "undetected"},
             "physics.self_collision": {**entry, "inert": [True], "p": [1.0], "verdict": "inert"},
             "visual.sensor_noise": {**entry, "detected": [True], "verdict": "detected"},
         },
-    }  # fmt: skip
+    }
     text = verdict(as_diagnosis(result))
     assert text.startswith("No gap beyond the within-domain noise floor")
     assert "27 simulations against 27" in text and "pools 54" in text
     assert "hardest to rule out: visual.specular." in text
-    assert "Inert in this scene (they change no feature at any strength tried): " \
+    assert (
+        "Inert in this scene (they change no feature at any strength tried): "
         "physics.self_collision." in text
+    )
     assert "sensor_noise" not in text

@@ -56,10 +56,11 @@ def _domain(seed, pixel_shift=None, motion_shift=None, stiffness=None):
     class_id = np.repeat(np.arange(GROUPS) % 6 * 9, CLIPS)
     return LadderFeatures(
         rungs={"pixel": pixel, "motion": motion, "enc.block1": layer},
-        groups=groups, class_id=class_id,
+        groups=groups,
+        class_id=class_id,
         stiffness=np.repeat(np.arange(1.0, GROUPS + 1), CLIPS) if stiffness is None else stiffness,
         density=np.full(len(groups), 0.3),
-    )  # fmt: skip
+    )
 
 
 def _shifted(base: LadderFeatures, rung: str, shift) -> LadderFeatures:
@@ -95,11 +96,15 @@ def test_the_gap_is_localised_on_the_planted_rung(planted):
 
 
 def test_rungs_that_the_scorer_rejects_are_passed_over():
-    location = {"significant": ["pixel", "motion", "enc.block1", "enc.block2", "lstm"],
-                "first_significant_layer": "enc.block1"}  # fmt: skip
+    location = {
+        "significant": ["pixel", "motion", "enc.block1", "enc.block2", "lstm"],
+        "first_significant_layer": "enc.block1",
+    }
     assert scored_rungs(location) == ["pixel", "motion", "enc.block1"]
     assert scored_rungs(location, lambda r: r not in ("pixel", "enc.block1")) == [
-        "motion", "enc.block2"]  # fmt: skip
+        "motion",
+        "enc.block2",
+    ]
     # when it rejects every rung that shows the gap, the choice without it stands
     assert scored_rungs(location, lambda r: False) == ["pixel", "motion", "enc.block1"]
     assert scored_rungs({"significant": [], "first_significant_layer": None}, bool) == []
@@ -120,11 +125,15 @@ def test_a_layer_where_s_sits_at_its_floor_is_not_scored(planted):
     sim, real = (_with_blind_layer(x, planted[0]) for x in planted[:2])  # R's = S's there
     gaps = rung_gaps(sim, real, n_perm=199, n_boot=99, n_floor=6, seed=0)
     # standing in for the pooled test: it flags enc.block0 and motion, where S shows nothing
-    location = {"significant": ["motion", "enc.block0", "enc.block1"],
-                "first_significant_layer": "enc.block0"}  # fmt: skip
+    location = {
+        "significant": ["motion", "enc.block0", "enc.block1"],
+        "first_significant_layer": "enc.block0",
+    }
     sizes = (0.5, 1.5, 3.0)
-    sets = [_with_blind_layer(_shifted(planted[0], "pixel", _shift([0, 1, 2], a)), planted[0])
-            for a in sizes]  # fmt: skip
+    sets = [
+        _with_blind_layer(_shifted(planted[0], "pixel", _shift([0, 1, 2], a)), planted[0])
+        for a in sizes
+    ]
     old = scored_rungs(location)
     right_old = candidate_result("visual.right", "camera", sizes, sets, sim, real, gaps, old)
     assert right_old.best_score == 0.0  # nothing to close on motion and enc.block0
@@ -149,12 +158,28 @@ def test_the_score_weights_each_rung_by_the_gap_it_carries():
     before = reference_scores(sim, real, rungs)
     weights = before.weights(gaps, rungs)
     assert weights.sum() == pytest.approx(1.0) and weights[0] > 2 * weights[1] > 0
-    weak = candidate_result("scene.weak", "scene", (1.0,),
-                            [_shifted(sim, "motion", _shift([5, 6, 7], 0.4))], sim, real, gaps,
-                            rungs, before)  # fmt: skip
-    strong = candidate_result("visual.strong", "camera", (1.0,),
-                              [_shifted(sim, "pixel", _shift([0, 1, 2], 0.9))], sim, real, gaps,
-                              rungs, before)  # fmt: skip
+    weak = candidate_result(
+        "scene.weak",
+        "scene",
+        (1.0,),
+        [_shifted(sim, "motion", _shift([5, 6, 7], 0.4))],
+        sim,
+        real,
+        gaps,
+        rungs,
+        before,
+    )
+    strong = candidate_result(
+        "visual.strong",
+        "camera",
+        (1.0,),
+        [_shifted(sim, "pixel", _shift([0, 1, 2], 0.9))],
+        sim,
+        real,
+        gaps,
+        rungs,
+        before,
+    )
     plain = {r.name: np.mean([r.closure_auc[k][0] for k in rungs]) for r in (weak, strong)}
     assert plain["scene.weak"] > plain["visual.strong"]  # the old mean put the weak one first
     assert strong.best_score > weak.best_score
@@ -217,19 +242,23 @@ def test_a_residual_that_moves_as_much_as_it_looks_different_lies_in_physics_or_
     assert text == "appearance or camera (the pixel statistics differ)"
     share = RESIDUAL_MOTION_SHARE
     assert stage_of_residual(both, quiet, {"pixel": 0.4, "motion": share * 0.4}).startswith(
-        "physics or scene")  # fmt: skip
-    assert stage_of_residual(both, quiet, {"pixel": 0.4, "motion": 0.99 * share * 0.4}
-                             ).startswith("appearance or camera")  # fmt: skip
+        "physics or scene"
+    )
+    assert stage_of_residual(both, quiet, {"pixel": 0.4, "motion": 0.99 * share * 0.4}).startswith(
+        "appearance or camera"
+    )
     # without the gaps (reports written before the rule) the pixel statistics decide
     assert stage_of_residual(both, quiet).startswith("appearance or camera")
     # a candidate that closes enough still places the residual first
     closing = {**quiet, "camera": 0.3}
     assert stage_of_residual(both, closing, {"pixel": 0.68, "motion": 0.55}).startswith(
-        "appearance or camera (the camera")  # fmt: skip
+        "appearance or camera (the camera"
+    )
     # a pixel-only gap never reaches the rule
     tone = {"significant": ["pixel"], "first_significant_layer": None}
     assert stage_of_residual(tone, quiet, {"pixel": 1.0, "motion": 0.9}).startswith(
-        "appearance or camera")  # fmt: skip
+        "appearance or camera"
+    )
 
 
 def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
@@ -237,17 +266,35 @@ def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
     rungs = scored_rungs(localise(gaps))
     sizes = (0.5, 1.5, 3.0)
     right = candidate_result(
-        "visual.right", "camera", sizes,
-        [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes], sim, real, gaps, rungs,
-    )  # fmt: skip
+        "visual.right",
+        "camera",
+        sizes,
+        [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes],
+        sim,
+        real,
+        gaps,
+        rungs,
+    )
     wrong = candidate_result(
-        "visual.wrong", "camera", sizes,
-        [_shifted(sim, "pixel", _shift([4, 5, 6], a)) for a in sizes], sim, real, gaps, rungs,
-    )  # fmt: skip
+        "visual.wrong",
+        "camera",
+        sizes,
+        [_shifted(sim, "pixel", _shift([4, 5, 6], a)) for a in sizes],
+        sim,
+        real,
+        gaps,
+        rungs,
+    )
     physics = candidate_result(
-        "physics.wrong", "physics", sizes,
-        [_shifted(sim, "motion", _shift([0, 1], a)) for a in sizes], sim, real, gaps, rungs,
-    )  # fmt: skip
+        "physics.wrong",
+        "physics",
+        sizes,
+        [_shifted(sim, "motion", _shift([0, 1], a)) for a in sizes],
+        sim,
+        real,
+        gaps,
+        rungs,
+    )
     null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
     ranking = rank_candidates([wrong, physics, right], null, kernel_rungs(gaps, rungs))
     assert ranking["ranking"][0] == "visual.right"
@@ -265,37 +312,93 @@ def test_the_strength_fit_lands_between_grid_points_with_an_interval_that_covers
     sizes = (0.5, 1.0, 2.0, 3.0)  # the planted 1.5 lies between two grid points
     sets = [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes]
     result = candidate_result("visual.right", "camera", sizes, sets, sim, real, gaps, rungs)
-    fitted = fit_strength(result, sets, sim, real, gaps, rungs, log_scale=False, n_boot=200,
-                          rng=np.random.default_rng(0))  # fmt: skip
+    fitted = fit_strength(
+        result,
+        sets,
+        sim,
+        real,
+        gaps,
+        rungs,
+        log_scale=False,
+        n_boot=200,
+        rng=np.random.default_rng(0),
+    )
     lo, hi = fitted.interval
     assert lo <= 1.5 <= hi
     assert 1.0 < fitted.fitted_strength < 2.0
     assert fitted.best_strength in (1.0, 2.0)  # the grid point it was built at stays known
     assert hi - lo < 2.0
     # the same in log strength
-    logged = fit_strength(result, sets, sim, real, gaps, rungs, log_scale=True, n_boot=200,
-                          rng=np.random.default_rng(0))  # fmt: skip
+    logged = fit_strength(
+        result,
+        sets,
+        sim,
+        real,
+        gaps,
+        rungs,
+        log_scale=True,
+        n_boot=200,
+        rng=np.random.default_rng(0),
+    )
     assert logged.interval[0] <= 1.5 <= logged.interval[1]
     # an effect that changes nothing: fresh draws of S, a flat noisy curve, a wide interval
     wrong = [_domain(20 + i) for i in range(len(sizes))]
     flat = candidate_result("visual.wrong", "camera", sizes, wrong, sim, real, gaps, rungs)
-    flat = fit_strength(flat, wrong, sim, real, gaps, rungs, log_scale=False, n_boot=200,
-                        rng=np.random.default_rng(0))  # fmt: skip
+    flat = fit_strength(
+        flat,
+        wrong,
+        sim,
+        real,
+        gaps,
+        rungs,
+        log_scale=False,
+        n_boot=200,
+        rng=np.random.default_rng(0),
+    )
     assert flat.interval[1] - flat.interval[0] > hi - lo
     # a plateau of tied best scores (closures clip at 1): the interval spans all of it and
     # half a grid step beyond, although the fit takes the first (blind round 9, 16019)
     plateau = dataclasses.replace(result, score=[0.2, 1.0, 1.0, 1.0])
-    plateau = fit_strength(plateau, sets, sim, real, gaps, rungs, log_scale=False, n_boot=200,
-                           rng=np.random.default_rng(0))  # fmt: skip
+    plateau = fit_strength(
+        plateau,
+        sets,
+        sim,
+        real,
+        gaps,
+        rungs,
+        log_scale=False,
+        n_boot=200,
+        rng=np.random.default_rng(0),
+    )
     assert plateau.interval == (0.75, 3.0)
-    logged = fit_strength(dataclasses.replace(result, score=[0.2, 1.0, 1.0, 0.4]), sets, sim,
-                          real, gaps, rungs, log_scale=True, n_boot=200,
-                          rng=np.random.default_rng(0))  # fmt: skip
+    logged = fit_strength(
+        dataclasses.replace(result, score=[0.2, 1.0, 1.0, 0.4]),
+        sets,
+        sim,
+        real,
+        gaps,
+        rungs,
+        log_scale=True,
+        n_boot=200,
+        rng=np.random.default_rng(0),
+    )
     assert logged.interval[0] < 1.0 and logged.interval[1] == pytest.approx(2.0 * 1.5**0.5, 1e-3)
     # switches pass through unchanged
     switch = candidate_result("physics.s", "physics", (None,), sets[:1], sim, real, gaps, rungs)
-    assert fit_strength(switch, sets[:1], sim, real, gaps, rungs, log_scale=False, n_boot=50,
-                        rng=np.random.default_rng(0)) is switch  # fmt: skip
+    assert (
+        fit_strength(
+            switch,
+            sets[:1],
+            sim,
+            real,
+            gaps,
+            rungs,
+            log_scale=False,
+            n_boot=50,
+            rng=np.random.default_rng(0),
+        )
+        is switch
+    )
 
 
 def test_two_strong_effects_are_scored_by_the_divergence_where_the_auc_saturates():
@@ -324,13 +427,24 @@ def test_two_strong_effects_are_scored_by_the_divergence_where_the_auc_saturates
         assert right.best_score > max(wrong.best_score, 0.0) + 0.05
     assert wrong.best_score < 0.02
     # the strength fit re-scores the divergence too: the interval covers the planted 4
-    fitted = fit_strength(first, sets, sim, real, gaps, rungs, log_scale=False, n_boot=100,
-                          rng=np.random.default_rng(0), before=before)  # fmt: skip
+    fitted = fit_strength(
+        first,
+        sets,
+        sim,
+        real,
+        gaps,
+        rungs,
+        log_scale=False,
+        n_boot=100,
+        rng=np.random.default_rng(0),
+        before=before,
+    )
     assert fitted.interval[0] <= 4.0 <= fitted.interval[1]
     # the two together close the whole gap
     joint = _shifted(sim, "pixel", both)
-    together = candidate_result("coalition", "coalition", (None,), [joint], sim, real, gaps,
-                                rungs, before)  # fmt: skip
+    together = candidate_result(
+        "coalition", "coalition", (None,), [joint], sim, real, gaps, rungs, before
+    )
     assert together.best_score > 0.8
 
 
@@ -381,9 +495,15 @@ def test_a_look_alike_that_the_classifier_cannot_tell_apart_fails_the_kernel_che
     shifted = [_shifted(sim, "pixel", _shift([0, 1, 2], a)) for a in sizes]
     right = candidate_result("visual.right", "camera", sizes, shifted, sim, real, gaps, rungs)
     alike = candidate_result(
-        "visual.alike", "camera", sizes, [_spread(f, "pixel", [4, 5, 6, 7], 3.0) for f in shifted],
-        sim, real, gaps, rungs,
-    )  # fmt: skip
+        "visual.alike",
+        "camera",
+        sizes,
+        [_spread(f, "pixel", [4, 5, 6, 7], 3.0) for f in shifted],
+        sim,
+        real,
+        gaps,
+        rungs,
+    )
     null = candidate_result("S'", "null", (None,), [_domain(7)], sim, real, gaps, rungs)
     on = kernel_rungs(gaps, rungs)
     assert "pixel" in on
@@ -440,8 +560,9 @@ def test_probes_transfer_only_where_the_real_labels_follow_the_features():
     sim = _domain(3)
     # R's stiffness follows its class ordering, like S's class id: the probe must find it
     real = _domain(4)
-    real = LadderFeatures(real.rungs, real.groups, real.class_id,
-                          real.class_id.astype(float) + 1.0, real.density)  # fmt: skip
+    real = LadderFeatures(
+        real.rungs, real.groups, real.class_id, real.class_id.astype(float) + 1.0, real.density
+    )
     probes = probe_transfer(sim, real)
     assert set(probes) == {"pixel", "motion", "enc.block1"}
     for entry in probes.values():
@@ -454,13 +575,21 @@ def test_shapley_values_split_additive_and_joint_gains():
     single = {"a": 0.5, "b": 0.2, "c": 0.0}
     additive = {
         frozenset(group): sum(single[p] for p in group)
-        for n in range(4) for group in itertools.combinations(players, n)
-    }  # fmt: skip
+        for n in range(4)
+        for group in itertools.combinations(players, n)
+    }
     assert shapley_values(players, additive) == pytest.approx({"a": 0.5, "b": 0.2, "c": 0.0})
     # a and b only work together (0.6); c adds 0.1 alone: the joint gain is shared equally
-    joint = {frozenset(): 0.0, frozenset("a"): 0.0, frozenset("b"): 0.0, frozenset("c"): 0.1,
-             frozenset("ab"): 0.6, frozenset("ac"): 0.1, frozenset("bc"): 0.1,
-             frozenset("abc"): 0.7}  # fmt: skip
+    joint = {
+        frozenset(): 0.0,
+        frozenset("a"): 0.0,
+        frozenset("b"): 0.0,
+        frozenset("c"): 0.1,
+        frozenset("ab"): 0.6,
+        frozenset("ac"): 0.1,
+        frozenset("bc"): 0.1,
+        frozenset("abc"): 0.7,
+    }
     values = shapley_values(players, joint)
     assert values == pytest.approx({"a": 0.3, "b": 0.3, "c": 0.1})
     assert sum(values.values()) == pytest.approx(joint[frozenset("abc")])  # efficiency
@@ -470,10 +599,16 @@ def test_a_coalition_is_worth_at_least_its_best_sub_coalition():
     # Validation set 7024: camera shake alone closed 96 % of the gap; with aero lift and
     # gusty wind added at their own fitted strengths, 17 %.
     shake, aero, gust = "shake", "aero", "gust"
-    measured = {frozenset(): 0.0, frozenset([shake]): 0.96, frozenset([aero]): 0.3,
-                frozenset([gust]): 0.1, frozenset([shake, aero]): 0.5,
-                frozenset([shake, gust]): 0.97, frozenset([aero, gust]): 0.2,
-                frozenset([shake, aero, gust]): 0.17}  # fmt: skip
+    measured = {
+        frozenset(): 0.0,
+        frozenset([shake]): 0.96,
+        frozenset([aero]): 0.3,
+        frozenset([gust]): 0.1,
+        frozenset([shake, aero]): 0.5,
+        frozenset([shake, gust]): 0.97,
+        frozenset([aero, gust]): 0.2,
+        frozenset([shake, aero, gust]): 0.17,
+    }
     worth = best_subset_values(measured)
     assert worth[frozenset([shake, aero, gust])] == 0.97
     assert worth[frozenset([shake, aero])] == 0.96
@@ -530,48 +665,73 @@ def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
     # damping, lighting variation and the withheld specular; the library order named air
     # damping. The kernel distance to R at the best strength orders the tie.
     def fit(name, stage, distance, score=1.0):
-        return CandidateResult(name, stage, (0.1, 0.3), {"pixel": [distance, 0.02]}, {},
-                               [score, 0.2], closure_auc={"pixel": [score, 0.2]})  # fmt: skip
+        return CandidateResult(
+            name,
+            stage,
+            (0.1, 0.3),
+            {"pixel": [distance, 0.02]},
+            {},
+            [score, 0.2],
+            closure_auc={"pixel": [score, 0.2]},
+        )
 
-    results = [fit("physics.air_damping", "physics", 0.0061),
-               fit("visual.lighting_variation", "appearance", 0.0096),
-               fit("visual.specular", "appearance", 0.0043),
-               fit("visual.white_balance", "camera", 0.0001, score=0.95)]  # fmt: skip
+    results = [
+        fit("physics.air_damping", "physics", 0.0061),
+        fit("visual.lighting_variation", "appearance", 0.0096),
+        fit("visual.specular", "appearance", 0.0043),
+        fit("visual.white_balance", "camera", 0.0001, score=0.95),
+    ]
     null = CandidateResult("S'", "null", (None,), {}, {}, [-1.0])
     ranking = rank_candidates(results, null, [])
-    assert ranking["ranking"] == ["visual.specular", "physics.air_damping",
-                                  "visual.lighting_variation", "visual.white_balance"]  # fmt: skip
+    assert ranking["ranking"] == [
+        "visual.specular",
+        "physics.air_damping",
+        "visual.lighting_variation",
+        "visual.white_balance",
+    ]
     assert ranking["top"] == "visual.specular" and ranking["explained"]
     assert ranking["confusable_with_top"] == ranking["ranking"][1:]
     # blind round 14, set 21005: a tie at 1.0 on one weak layer between wind-yaw jitter
     # (interval 0-45 around its nominal 15) and the withheld air damping; the jitter was
     # nearer by the kernel distance and, holding its neutral value, left the gap unexplained
-    jitter = dataclasses.replace(fit("scene.wind_yaw_jitter_deg", "scene", 0.0001),
-                                 fit_interval=(0.0, 45.0), neutral=15.0)  # fmt: skip
+    jitter = dataclasses.replace(
+        fit("scene.wind_yaw_jitter_deg", "scene", 0.0001), fit_interval=(0.0, 45.0), neutral=15.0
+    )
     damping = fit("physics.air_damping", "physics", 0.0061)
     ranking = rank_candidates([jitter, damping], null, [])
     assert ranking["ranking"] == ["physics.air_damping", "scene.wind_yaw_jitter_deg"]
     assert ranking["top"] == "physics.air_damping" and ranking["explained"]
     # a candidate that holds its neutral value still leads when it closes more
-    ranking = rank_candidates([jitter, fit("physics.air_damping", "physics", 0.0061, 0.9)],
-                              null, [])  # fmt: skip
+    ranking = rank_candidates(
+        [jitter, fit("physics.air_damping", "physics", 0.0061, 0.9)], null, []
+    )
     assert ranking["top"] == "scene.wind_yaw_jitter_deg" and ranking["neutral_in_interval"]
 
 
 @pytest.mark.parametrize(
     ("interval", "neutral", "named"),
-    [((0.0, 22.8), 15.0, False), ((14.7, 30.2), 15.0, False), ((15.0, 19.0), 15.0, False),
-     ((2.0, 10.0), 15.0, True), ((0.01, 0.11), None, True)],
-)  # fmt: skip
-def test_a_candidate_whose_interval_holds_its_neutral_value_is_not_named(
-    interval, neutral, named
-):
+    [
+        ((0.0, 22.8), 15.0, False),
+        ((14.7, 30.2), 15.0, False),
+        ((15.0, 19.0), 15.0, False),
+        ((2.0, 10.0), 15.0, True),
+        ((0.01, 0.11), None, True),
+    ],
+)
+def test_a_candidate_whose_interval_holds_its_neutral_value_is_not_named(interval, neutral, named):
     # Blind round 11, sets 18004 and 18015: wind-yaw jitter closed the gap at a fitted 2.5°
     # and 19°, with intervals that held the scene's nominal 15°: named, wrongly, both times.
     top = CandidateResult(
-        "scene.wind_yaw_jitter_deg", "scene", (2.5, 15.0, 30.0), {}, {}, [0.9, 0.4, 0.2],
-        fitted=2.5, fit_interval=interval, neutral=neutral,
-    )  # fmt: skip
+        "scene.wind_yaw_jitter_deg",
+        "scene",
+        (2.5, 15.0, 30.0),
+        {},
+        {},
+        [0.9, 0.4, 0.2],
+        fitted=2.5,
+        fit_interval=interval,
+        neutral=neutral,
+    )
     null = CandidateResult("S'", "null", (None,), {}, {}, [-0.1])
     ranking = rank_candidates([top, null], null, [])
     assert top.holds_neutral is not named
@@ -584,17 +744,32 @@ def test_a_candidate_whose_interval_holds_its_neutral_value_is_not_named(
 def test_the_verdict_says_why_a_candidate_that_closes_the_gap_is_not_named():
     from sim2real.report import verdict
 
-    ranking = {"explained": False, "look_alike": False, "neutral_in_interval": True,
-               "top": "scene.wind_yaw_jitter_deg", "threshold": 0.6}  # fmt: skip
+    ranking = {
+        "explained": False,
+        "look_alike": False,
+        "neutral_in_interval": True,
+        "top": "scene.wind_yaw_jitter_deg",
+        "threshold": 0.6,
+    }
     result = {
-        "location": {"significant": ["motion"], "gap_p": 0.01, "alpha": 0.05,
-                     "first_significant_layer": None},
-        "rungs": {"motion": {"corrected_auc": 0.2}}, "ranking": ranking,
-        "candidates": {"scene.wind_yaw_jitter_deg": {
-            "stage": "scene", "best_score": 0.93, "strength_interval": [0.0, 22.8],
-            "neutral": 15.0}},
+        "location": {
+            "significant": ["motion"],
+            "gap_p": 0.01,
+            "alpha": 0.05,
+            "first_significant_layer": None,
+        },
+        "rungs": {"motion": {"corrected_auc": 0.2}},
+        "ranking": ranking,
+        "candidates": {
+            "scene.wind_yaw_jitter_deg": {
+                "stage": "scene",
+                "best_score": 0.93,
+                "strength_interval": [0.0, 22.8],
+                "neutral": 15.0,
+            }
+        },
         "residual_stage": "physics or scene",
-    }  # fmt: skip
+    }
     result = as_diagnosis(result)
     text = verdict(result)
     assert "scene.wind_yaw_jitter_deg closes 93 % of the classifier gap" in text

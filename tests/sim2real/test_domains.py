@@ -38,8 +38,10 @@ def test_image_effects_over_the_shared_render_give_the_whole_renders_bytes(
     specs = _effect_specs(nominal)
     whole = {n: simulated_clips(s, meshes, clip_len=4, clip_stride=4) for n, s in specs.items()}
     for name, spec in specs.items():
-        _same(simulated_clips(spec, meshes, clip_len=4, clip_stride=4, render_cache=renders),
-              whole[name])  # fmt: skip
+        _same(
+            simulated_clips(spec, meshes, clip_len=4, clip_stride=4, render_cache=renders),
+            whole[name],
+        )
     # Two renders of two simulations: the nominal one, which every single image effect
     # reads, and the shaken and lit one.
     assert len(list(renders.iterdir())) == 4
@@ -49,8 +51,10 @@ def test_image_effects_over_the_shared_render_give_the_whole_renders_bytes(
 
     monkeypatch.setattr(domains, "render_frames", no_render)
     for name, spec in specs.items():
-        _same(simulated_clips(spec, meshes, clip_len=4, clip_stride=4, render_cache=renders),
-              whole[name])  # fmt: skip
+        _same(
+            simulated_clips(spec, meshes, clip_len=4, clip_stride=4, render_cache=renders),
+            whole[name],
+        )
 
 
 def test_without_image_effects_or_with_a_frame_rate_change_a_set_renders_whole(nominal, tmp_path):
@@ -60,6 +64,8 @@ def test_without_image_effects_or_with_a_frame_rate_change_a_set_renders_whole(n
     )
     slower = candidate_library(nominal)["visual.frame_rate"].apply(nominal, 0.5)
     for spec in (nominal, shaken, slower):
-        _same(simulated_clips(spec, meshes, clip_len=4, clip_stride=4, render_cache=renders),
-              simulated_clips(spec, meshes, clip_len=4, clip_stride=4))  # fmt: skip
+        _same(
+            simulated_clips(spec, meshes, clip_len=4, clip_stride=4, render_cache=renders),
+            simulated_clips(spec, meshes, clip_len=4, clip_stride=4),
+        )
     assert not renders.exists()

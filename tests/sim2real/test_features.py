@@ -307,8 +307,10 @@ def test_row_timing_tells_a_row_dependent_blend_from_a_uniform_blend(dx, dy):
     # rows in time more than the top ones; the same blend on every row does not. Averaged
     # over four textures (one texture's thirds differ by chance). Measured: row-dependent
     # -0.17 to -0.32, uniform blend within 0.05.
-    hi = [MOT["rows_bottom_minus_top_tpsd_log_0.25-0.375cpf"],
-          MOT["rows_bottom_minus_top_tpsd_log_0.375-0.5cpf"]]  # fmt: skip
+    hi = [
+        MOT["rows_bottom_minus_top_tpsd_log_0.25-0.375cpf"],
+        MOT["rows_bottom_minus_top_tpsd_log_0.375-0.5cpf"],
+    ]
     shifts = {}
     for seed in range(4):
         clip = noisy(moving_clip(dx, dy, frames=16, seed=seed), 1)

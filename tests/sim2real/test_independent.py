@@ -19,27 +19,57 @@ from sim2real.study import independent
 from tests.conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[2]
-COLUMNS = ["video", "stiffness", "density", "wind", "fps", "fabric", "stretch_stiffness",
-           "bend_stiffness"]  # fmt: skip
-SMALL = ["--fabrics", "2", "--winds", "2", "--size", "32", "--frames", "10", "--seed", "3",
-         "--no-progress"]  # fmt: skip
+COLUMNS = [
+    "video",
+    "stiffness",
+    "density",
+    "wind",
+    "fps",
+    "fabric",
+    "stretch_stiffness",
+    "bend_stiffness",
+]
+SMALL = [
+    "--fabrics",
+    "2",
+    "--winds",
+    "2",
+    "--size",
+    "32",
+    "--frames",
+    "10",
+    "--seed",
+    "3",
+    "--no-progress",
+]
 
 
 def _command(*args, timeout=300):
     return subprocess.run(
-        [sys.executable, "-m", "sim2real.study.independent", *args], cwd=ROOT,
-        env=subprocess_env(), capture_output=True, text=True, timeout=timeout,
-    )  # fmt: skip
+        [sys.executable, "-m", "sim2real.study.independent", *args],
+        cwd=ROOT,
+        env=subprocess_env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 @pytest.fixture(scope="module")
 def renders():
     """Skip (naming why) unless MuJoCo imports and renders offscreen in a fresh process."""
     probe = subprocess.run(
-        [sys.executable, "-c", "from sim2real.study.independent import render_available as r; "
-         "print(r() or 'ok')"],
-        cwd=ROOT, env=subprocess_env(), capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-c",
+            "from sim2real.study.independent import render_available as r; print(r() or 'ok')",
+        ],
+        cwd=ROOT,
+        env=subprocess_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     reason = probe.stdout.strip().splitlines()[-1] if probe.stdout.strip() else probe.stderr
     if probe.returncode != 0 or reason != "ok":
         pytest.skip(f"MuJoCo offscreen (EGL) rendering unavailable: {reason.strip()[-300:]}")
@@ -54,8 +84,9 @@ def footage(renders, tmp_path_factory):
 
 
 def _files(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file()}  # fmt: skip
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 @pytest.mark.render
@@ -72,8 +103,9 @@ def test_the_folder_reads_as_real_footage(footage):
     assert tuple(sample["video"].shape) == (10, 3, 32, 32)
     assert sample["wind"] == "W1" and sample["stiffness"] > 0 and sample["density"] > 0
     assert float(sample["video"].std()) > 0.01  # not a blank frame
-    clips = real_clips(footage, size=32, clip_len=10, clip_stride=10, fps=15.0,
-                       max_clips_per_video=3)  # fmt: skip
+    clips = real_clips(
+        footage, size=32, clip_len=10, clip_stride=10, fps=15.0, max_clips_per_video=3
+    )
     assert clips.frames.shape == (4, 10, 32, 32, 3) and clips.group_count == 4
     extra = RealVideoDataset(footage, size=32, columns=("stretch_stiffness", "bend_stiffness"))
     assert extra[0]["bend_stiffness"] > 0
@@ -92,14 +124,24 @@ def test_labels_have_the_columns_and_positive_values(footage):
     ranges = independent.measured_ranges()
     basis = ranges["basis_bend"][0]
     for row in rows:  # stiffness = the bend multiplier on the basis fabric, as the sealed sets'
-        assert float(row["stiffness"]) == pytest.approx(float(row["bend_stiffness"]) / basis,
-                                                        rel=1e-3)  # fmt: skip
+        assert float(row["stiffness"]) == pytest.approx(
+            float(row["bend_stiffness"]) / basis, rel=1e-3
+        )
         for name in ("stretch_stiffness", "bend_stiffness", "density"):
             low, high = ranges[name]
             assert low * 0.999 <= float(row[name]) <= high * 1.001, name
     engine = json.loads((footage.parent / "set.engine.json").read_text())
-    for topic in ("wind_model", "wind", "material_law", "pinning", "mass_distribution",
-                  "texture", "backdrop", "codec", "frame_rate"):  # fmt: skip
+    for topic in (
+        "wind_model",
+        "wind",
+        "material_law",
+        "pinning",
+        "mass_distribution",
+        "texture",
+        "backdrop",
+        "codec",
+        "frame_rate",
+    ):
         assert set(engine["differences"][topic]) == {"ours", "here"}, topic
     assert engine["codec"]["used"] == "png" and engine["frame_rate"] == 15.0
     truth = engine["videos"]
@@ -130,10 +172,12 @@ def test_a_stiffer_fabric_moves_less_under_the_same_wind():
         pytest.skip(f"cannot import mujoco (a dev dependency): {error!r}")
     ranges = independent.measured_ranges()
     density = float(np.sqrt(np.prod(ranges["density"])))
-    soft = independent.EngineFabric(0, ranges["stretch_stiffness"][0],
-                                    ranges["bend_stiffness"][0], density, 1.0)  # fmt: skip
-    stiff = independent.EngineFabric(0, ranges["stretch_stiffness"][1],
-                                     ranges["bend_stiffness"][1], density, 1.0)  # fmt: skip
+    soft = independent.EngineFabric(
+        0, ranges["stretch_stiffness"][0], ranges["bend_stiffness"][0], density, 1.0
+    )
+    stiff = independent.EngineFabric(
+        0, ranges["stretch_stiffness"][1], ranges["bend_stiffness"][1], density, 1.0
+    )
     # the same index, seed and level: the same gusts, waviness and fan yaw
     motion = {
         name: _motion(independent.simulate_positions(fabric, 2, seed=0, frames=20))
@@ -174,8 +218,19 @@ def test_a_video_codec_is_used_and_recorded(renders, tmp_path):
     from datasets.real_video import RealVideoDataset
 
     out = tmp_path / "videos"
-    done = _command("--out", str(out), "--fabrics", "1", "--winds", "1", "--size", "32",
-                    "--frames", "10", "--no-progress")  # fmt: skip
+    done = _command(
+        "--out",
+        str(out),
+        "--fabrics",
+        "1",
+        "--winds",
+        "1",
+        "--size",
+        "32",
+        "--frames",
+        "10",
+        "--no-progress",
+    )
     assert done.returncode == 0, done.stderr
     codec = json.loads((tmp_path / "videos.engine.json").read_text())["codec"]
     assert codec["requested"] == "h264" and codec["used"] in ("avc1", "mp4v", "MJPG")

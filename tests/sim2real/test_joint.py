@@ -49,15 +49,21 @@ def _world(seed: int, factors: dict) -> LadderFeatures:
         x[:, 3] += 2.0 * factors["decoy"]
     groups = np.repeat(np.array([f"{'r' if seed else 's'}{i}" for i in range(SIMS)]), CLIPS)
     n = len(groups)
-    return LadderFeatures(rungs={"pixel": x}, groups=groups, class_id=np.zeros(n, np.int64),
-                          stiffness=np.ones(n), density=np.ones(n))  # fmt: skip
+    return LadderFeatures(
+        rungs={"pixel": x},
+        groups=groups,
+        class_id=np.zeros(n, np.int64),
+        stiffness=np.ones(n),
+        density=np.ones(n),
+    )
 
 
 @pytest.fixture(scope="module")
 def scene():
     sim, null, real = _world(0, {}), _world(2, {}), _world(1, PLANTED)
-    reference = compare_domains(sim, null, real, n_perm=50, n_boot=50, n_floor=3, seed=0,
-                                alpha=0.05)  # fmt: skip
+    reference = compare_domains(
+        sim, null, real, n_perm=50, n_boot=50, n_floor=3, seed=0, alpha=0.05
+    )
     assert reference.rungs == ["pixel"]
     assert reference.before.saturated("pixel")  # the AUC is stuck at 1
 
@@ -127,8 +133,10 @@ def test_a_synthetic_game_is_attributed_exactly():
     worth = {"a": 0.5, "b": 0.3, "c": 0.0}
 
     def evaluate(batch):
-        return [Value(sum(worth[n] for n, _ in a), np.full(7, sum(worth[n] for n, _ in a)))
-                for a in batch]  # fmt: skip
+        return [
+            Value(sum(worth[n] for n, _ in a), np.full(7, sum(worth[n] for n, _ in a)))
+            for a in batch
+        ]
 
     factors = [Factor(n, "physics", (None,)) for n in worth]  # switches: on is None
     fit = fit_jointly(factors, evaluate)
@@ -187,15 +195,18 @@ def test_forward_selection_chooses_the_planted_factors_and_leaves_the_decoy(scen
 
 def test_selection_keeps_one_factor_per_setting_and_respects_top(scene):
     _, evaluate, _ = scene
-    pool = [Factor("shift", "physics", (0.5, 1.0, 1.5)),
-            Factor("shift_too", "physics", (1.0,), setting="shift"),
-            Factor("spread", "camera", (1.0, 2.0, 3.0))]  # fmt: skip
+    pool = [
+        Factor("shift", "physics", (0.5, 1.0, 1.5)),
+        Factor("shift_too", "physics", (1.0,), setting="shift"),
+        Factor("spread", "camera", (1.0, 2.0, 3.0)),
+    ]
 
     def evaluate_alias(batch):  # shift_too applies shift: never together with it
         for a in batch:
             assert not {"shift", "shift_too"} <= dict(a).keys()
-        return evaluate([tuple(("shift" if n == "shift_too" else n, v) for n, v in a)
-                         for a in batch])  # fmt: skip
+        return evaluate(
+            [tuple(("shift" if n == "shift_too" else n, v) for n, v in a) for a in batch]
+        )
 
     def screen(current, additions):
         renamed = [("shift" if n == "shift_too" else n, v) for n, v in additions]
@@ -220,8 +231,14 @@ def test_nothing_is_selected_when_no_factor_closes_enough():
     pool = [Factor(n, "physics", (None,)) for n in "abc"]
     chosen, calibrated, value, path = select(pool, evaluate, screen, top=3, verify=2)
     assert chosen == [] and calibrated == () and value.closure == 0.0
-    assert path == [{"step": 1, "screened": {"a": ["on", 0.01], "b": ["on", 0.01]},
-                     "measured": {"a": 0.01, "b": 0.01}, "added": None}]  # fmt: skip
+    assert path == [
+        {
+            "step": 1,
+            "screened": {"a": ["on", 0.01], "b": ["on", 0.01]},
+            "measured": {"a": 0.01, "b": 0.01},
+            "added": None,
+        }
+    ]
     fit = fit_jointly(pool, evaluate, screen=screen, top=3)
     assert fit.strengths == {} and fit.closure == 0.0 and "unexplained" in fit.sentence()
 

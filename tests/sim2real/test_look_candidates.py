@@ -17,8 +17,9 @@ from sim2real.domains import simulated_clips
 from sim2real.study.seal import _base_spec
 from simulator.cloth.scenes import ScenarioArmBend, ScenarioWind
 
-SPEC = DatasetSpec(motion="wind", scenario=ScenarioWind(resolution_level=1),
-                   preset=PRESETS["small"])  # fmt: skip
+SPEC = DatasetSpec(
+    motion="wind", scenario=ScenarioWind(resolution_level=1), preset=PRESETS["small"]
+)
 LOOKS = ("look.texture_mode", "look.backdrop")
 
 
@@ -26,8 +27,11 @@ def test_the_library_lists_texture_family_and_backdrop_as_appearance_candidates(
     library = candidate_library(SPEC)
     texture, backdrop = library["look.texture_mode"], library["look.backdrop"]
     for candidate, field in ((texture, "texture_mode"), (backdrop, "backdrop")):
-        assert (candidate.stage, candidate.registry, candidate.field) == ("appearance", "look",
-                                                                          field)  # fmt: skip
+        assert (candidate.stage, candidate.registry, candidate.field) == (
+            "appearance",
+            "look",
+            field,
+        )
     assert texture.strengths(3) == ("grid", "color") and texture.default == "random"
     assert backdrop.strengths(3) == ("plain", "dark", "gradient") and backdrop.default == "bank"
     assert not texture.needs_simulation and not backdrop.needs_simulation
@@ -56,8 +60,9 @@ def test_apply_changes_only_that_field_and_keeps_the_meshes():
 
 def test_a_default_spec_keeps_the_key_it_had_before_the_backdrop():
     # Keys computed on main before the field existed (commit 96ff00d).
-    arm = DatasetSpec(motion="arm", scenario=ScenarioArmBend(), preset=PRESETS["full"],
-                      texture_mode="grid")  # fmt: skip
+    arm = DatasetSpec(
+        motion="arm", scenario=ScenarioArmBend(), preset=PRESETS["full"], texture_mode="grid"
+    )
     assert (SPEC.key(), SPEC.physics_key()) == ("4258f236f4b63453", "a8c6c5c6be4e0dfc")
     assert _base_spec(None, 1).key() == "e29dd8acde6bb87b"
     assert (arm.key(), arm.physics_key()) == ("ddff94441adb4921", "ba249c210e2201bf")
@@ -98,8 +103,9 @@ def test_each_backdrop_draws_its_kinds_from_the_simulations_seed(monkeypatch):
     monkeypatch.setattr(backgrounds, "photos_available", lambda: False)  # as on any machine
     spec = dataclasses.replace(SPEC, camera=CameraSpec.wind(48, 48))
     sims = [s for unit in plan_units(spec) for s in unit.sims][:6]
-    looks = {b: [sim_look(dataclasses.replace(spec, backdrop=b), s)[1] for s in sims]
-             for b in BACKDROPS}  # fmt: skip
+    looks = {
+        b: [sim_look(dataclasses.replace(spec, backdrop=b), s)[1] for s in sims] for b in BACKDROPS
+    }
     for sim, bank in zip(sims, looks["bank"], strict=True):  # the bank's bytes of before
         rng = np.random.default_rng([sim.seed, _BACKGROUND_STREAM])
         assert np.array_equal(bank, make_background(rng, 48, 48))
@@ -123,8 +129,7 @@ def test_each_backdrop_draws_its_kinds_from_the_simulations_seed(monkeypatch):
 @pytest.mark.render
 def test_a_plain_backdrop_renders_a_uniform_background_around_the_cloth(nominal, tmp_path):
     library = candidate_library(nominal)
-    plain = simulated_clips(library["look.backdrop"].apply(nominal, "plain"), tmp_path,
-                            clip_len=4)  # fmt: skip
+    plain = simulated_clips(library["look.backdrop"].apply(nominal, "plain"), tmp_path, clip_len=4)
     bank = simulated_clips(nominal, tmp_path, clip_len=4)
     assert len(list(tmp_path.iterdir())) == 1  # one mesh folder: the look re-renders
     for clips, uniform in ((plain, True), (bank, False)):
@@ -150,8 +155,9 @@ def test_the_render_cache_never_serves_the_render_of_another_look(nominal, tmp_p
         "dark": library["look.backdrop"].apply(noisy, "dark"),
         "color": library["look.texture_mode"].apply(noisy, "color"),
     }
-    cached = {n: simulated_clips(s, meshes, clip_len=4, render_cache=renders)
-              for n, s in specs.items()}  # fmt: skip
+    cached = {
+        n: simulated_clips(s, meshes, clip_len=4, render_cache=renders) for n, s in specs.items()
+    }
     assert len(list(meshes.iterdir())) == 1  # every look re-renders the same meshes
     assert len(list(renders.iterdir())) == 2 * len(specs)  # a render per look and simulation
     for name, spec in specs.items():
@@ -165,7 +171,8 @@ def test_the_render_cache_never_serves_the_render_of_another_look(nominal, tmp_p
         raise AssertionError("rendered again although the render is stored")
 
     monkeypatch.setattr(domains, "render_frames", no_render)
-    again = {n: simulated_clips(s, meshes, clip_len=4, render_cache=renders)
-             for n, s in specs.items()}  # fmt: skip
+    again = {
+        n: simulated_clips(s, meshes, clip_len=4, render_cache=renders) for n, s in specs.items()
+    }
     assert len(list(renders.iterdir())) == 2 * len(specs)
     assert all(np.array_equal(again[n].frames, cached[n].frames) for n in specs)

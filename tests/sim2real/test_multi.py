@@ -30,8 +30,10 @@ def test_a_multi_set_withholds_several_effects_across_the_stages(seed):
 
 def test_stages_are_spread_over_many_sets_and_twins_withhold_nothing():
     stages = [{e["stage"] for e in draw_answer(s, LIBRARY, "multi")["effects"]} for s in range(40)]
-    assert all(sum(stage in s for s in stages) >= 30 for stage in
-               ("physics", "scene", "appearance", "camera"))  # fmt: skip
+    assert all(
+        sum(stage in s for s in stages) >= 30
+        for stage in ("physics", "scene", "appearance", "camera")
+    )
     assert draw_answer(3, LIBRARY, "twin")["effects"] == []
     assert draw_answer(3, LIBRARY)["kind"] in ("single", "pair", "open")  # never drawn unasked
 
@@ -46,25 +48,43 @@ def test_multi_sets_draw_the_texture_family_and_the_backdrop_too():
 
 def _joint(shapley: dict[str, float], stages: dict[str, str]) -> JointFit:
     return JointFit(
-        factors=stages, strengths=dict.fromkeys(shapley, 1.0), strength_interval={},
+        factors=stages,
+        strengths=dict.fromkeys(shapley, 1.0),
+        strength_interval={},
         closure=sum(shapley.values()),
-        closure_interval=(0.0, 1.0), reset=dict(shapley),
-        reset_interval=dict.fromkeys(shapley, (0.0, 1.0)), shapley=shapley,
-        shapley_interval=dict.fromkeys(shapley, (0.0, 1.0)), path=[], sets=9,
-    )  # fmt: skip
+        closure_interval=(0.0, 1.0),
+        reset=dict(shapley),
+        reset_interval=dict.fromkeys(shapley, (0.0, 1.0)),
+        shapley=shapley,
+        shapley_interval=dict.fromkeys(shapley, (0.0, 1.0)),
+        path=[],
+        sets=9,
+    )
 
 
-STAGES = {"physics.air_damping": "physics", "visual.sensor_noise": "camera",
-          "visual.specular": "appearance", "scene.size": "scene"}  # fmt: skip
+STAGES = {
+    "physics.air_damping": "physics",
+    "visual.sensor_noise": "camera",
+    "visual.specular": "appearance",
+    "scene.size": "scene",
+}
 
 
 def _diagnosis(joint=None, top="visual.sensor_noise", explained=False):
-    result = as_diagnosis({
-        "ranking": {"ranking": [top], "top": top, "explained": explained},
-        "scored_rungs": ["pixel"],
-        "candidates": {top: {"stage": STAGES[top], "best_score": 0.3, "best_strength": 4.0,
-                             "strength_interval": [1.0, 2.0]}},
-    })  # fmt: skip
+    result = as_diagnosis(
+        {
+            "ranking": {"ranking": [top], "top": top, "explained": explained},
+            "scored_rungs": ["pixel"],
+            "candidates": {
+                top: {
+                    "stage": STAGES[top],
+                    "best_score": 0.3,
+                    "best_strength": 4.0,
+                    "strength_interval": [1.0, 2.0],
+                }
+            },
+        }
+    )
     return dataclasses.replace(result, joint=joint)
 
 
@@ -74,12 +94,16 @@ def _multi_answer(*names):
 
 
 def test_factor_scores_and_stage_shares_against_the_truth():
-    joint = _joint({"physics.air_damping": 0.5, "visual.sensor_noise": 0.2,
-                    "visual.specular": 0.1}, STAGES)  # fmt: skip
+    joint = _joint(
+        {"physics.air_damping": 0.5, "visual.sensor_noise": 0.2, "visual.specular": 0.1}, STAGES
+    )
     result = _diagnosis(joint)
     answer = _multi_answer("physics.air_damping", "visual.sensor_noise", "scene.size")
-    truth = {"closure": 0.9, "matter": ["physics.air_damping", "visual.sensor_noise"],
-             "stage_shares": {"physics": 0.6, "camera": 0.3}}  # fmt: skip
+    truth = {
+        "closure": 0.9,
+        "matter": ["physics.air_damping", "visual.sensor_noise"],
+        "stage_shares": {"physics": 0.6, "camera": 0.3},
+    }
     row = score_set(result, answer, truth)
     assert row["factor_precision"] == pytest.approx(2 / 3)
     assert row["factor_recall"] == pytest.approx(2 / 3)
@@ -111,8 +135,10 @@ def test_the_closed_loop_retrains_with_every_factor_of_the_calibrated_simulator(
     from sim2real.shrink import chosen_effects
 
     joint = _joint({"physics.air_damping": 0.5, "visual.sensor_noise": 0.2}, STAGES)
-    assert chosen_effects(_diagnosis(joint)) == [("physics.air_damping", 1.0),
-                                                 ("visual.sensor_noise", 1.0)]  # fmt: skip
+    assert chosen_effects(_diagnosis(joint)) == [
+        ("physics.air_damping", 1.0),
+        ("visual.sensor_noise", 1.0),
+    ]
     assert chosen_effects(_diagnosis(None, explained=True)) == [("visual.sensor_noise", 4.0)]
     with pytest.raises(ValueError, match="named no effect"):
         chosen_effects(_diagnosis(None))
@@ -122,18 +148,24 @@ def test_the_closed_loop_retrains_with_every_factor_of_the_calibrated_simulator(
 def test_the_truth_is_refitted_from_its_sealed_strengths_over_the_scored_grid():
     from sim2real.study.multi import _truth_factors
 
-    result = as_diagnosis({"candidates": {
-        "visual.defocus_blur": {"stage": "camera", "strengths": [0.75, 1.5, 2.25, 3.0]},
-        "scene.pose": {"stage": "scene", "strengths": ["edge"]},
-    }})  # fmt: skip
-    answer = {"kind": "multi", "effects": [
-        {"name": "visual.defocus_blur", "stage": "camera", "strength": 2.018, "library": True},
-        {"name": "scene.pose", "stage": "scene", "strength": "edge", "library": True},
-        {"name": "visual.shadows", "stage": "appearance", "strength": None, "library": True},
-        {"name": "a new effect", "stage": "physics", "strength": 1.0, "library": False},
-    ]}  # fmt: skip
+    result = as_diagnosis(
+        {
+            "candidates": {
+                "visual.defocus_blur": {"stage": "camera", "strengths": [0.75, 1.5, 2.25, 3.0]},
+                "scene.pose": {"stage": "scene", "strengths": ["edge"]},
+            }
+        }
+    )
+    answer = {
+        "kind": "multi",
+        "effects": [
+            {"name": "visual.defocus_blur", "stage": "camera", "strength": 2.018, "library": True},
+            {"name": "scene.pose", "stage": "scene", "strength": "edge", "library": True},
+            {"name": "visual.shadows", "stage": "appearance", "strength": None, "library": True},
+            {"name": "a new effect", "stage": "physics", "strength": 1.0, "library": False},
+        ],
+    }
     defocus, pose, shadows = _truth_factors(result, answer, spread=3)
     assert defocus.start == 2.018 and defocus.options == (0.75, 2.018, 2.25, 3.0)
     assert pose.options == ("edge",) and pose.start == "edge"
     assert shadows.options == (None,) and shadows.start is None  # a switch: on
-

@@ -31,26 +31,45 @@ from tests.sim2real.reports import as_diagnosis
 
 NET = {
     "_target_": "models.components.video_nets.CNNLSTMNet",
-    "encoder": {"_target_": "models.components.frame_encoder.FrameEncoder",
-                "name": "alexnet5", "feature_dim": 32, "width": 0.25},
+    "encoder": {
+        "_target_": "models.components.frame_encoder.FrameEncoder",
+        "name": "alexnet5",
+        "feature_dim": 32,
+        "width": 0.25,
+    },
     "hidden_size": 16,
-}  # fmt: skip
+}
 BUDGET = Budget(
-    name="test", class_grid=None, sims_per_class=2, clips_per_sim=2, strengths=3,
-    n_perm=99, n_boot=99, n_floor=5,
-)  # fmt: skip
+    name="test",
+    class_grid=None,
+    sims_per_class=2,
+    clips_per_sim=2,
+    strengths=3,
+    n_perm=99,
+    n_boot=99,
+    n_floor=5,
+)
 CANDIDATES = ["visual.sensor_noise", "visual.defocus_blur", "visual.white_balance"]
 
 
 def _spec() -> DatasetSpec:
     return DatasetSpec(
-        motion="wind", scenario=ScenarioWind(resolution_level=1, settle_time=0.2),
-        preset=SizePreset("tiny", sims_per_class=3, clips_per_sim=1, val_sims_per_class=1,
-                          test_sims_per_class=1, frames_per_clip=4),
-        classes=(0, 20, 33, 53), lead_in=0.2,
+        motion="wind",
+        scenario=ScenarioWind(resolution_level=1, settle_time=0.2),
+        preset=SizePreset(
+            "tiny",
+            sims_per_class=3,
+            clips_per_sim=1,
+            val_sims_per_class=1,
+            test_sims_per_class=1,
+            frames_per_clip=4,
+        ),
+        classes=(0, 20, 33, 53),
+        lead_in=0.2,
         sim=SimSettings(dtype="float32", max_dt=0.00834, settle_max_dt=0.0167),
-        camera=CameraSpec.wind(32, 32), texture_size=64,
-    )  # fmt: skip
+        camera=CameraSpec.wind(32, 32),
+        texture_size=64,
+    )
 
 
 def _checkpoint(path, net_config, classes=54):
@@ -58,8 +77,9 @@ def _checkpoint(path, net_config, classes=54):
     torch.manual_seed(0)
     module = MaterialClassifierModule(instantiate(config), net_config=config)
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()},
-               path)  # fmt: skip
+    torch.save(
+        {"hyper_parameters": {"net_config": config}, "state_dict": module.state_dict()}, path
+    )
 
 
 @pytest.fixture(scope="module")
@@ -76,19 +96,27 @@ def world(tmp_path_factory):
             {"name": "visual.sensor_noise", "stage": "camera", "strength": 6.0, "library": True}
         ],
     }
-    answer_path, digest = seal_set(root / "real", base=spec, seed=1, videos=8, clips_per_video=2,
-                                   clip_len=4, answer=answer)  # fmt: skip
+    answer_path, digest = seal_set(
+        root / "real", base=spec, seed=1, videos=8, clips_per_video=2, clip_len=4, answer=answer
+    )
     return {"root": root, "answer": answer_path, "digest": digest}
 
 
 def _diagnose(world, out, candidates=CANDIDATES, **changes):
     root = world["root"]
     kwargs = {
-        "real_dir": root / "real", "run": root / "run", "data_dir": root / "data",
-        "out_dir": out, "cache_dir": root / "cache", "mesh_cache": root / "meshes",
-        "budget": BUDGET, "candidates": candidates, "clip_len": 4, "clip_stride": 4,
+        "real_dir": root / "real",
+        "run": root / "run",
+        "data_dir": root / "data",
+        "out_dir": out,
+        "cache_dir": root / "cache",
+        "mesh_cache": root / "meshes",
+        "budget": BUDGET,
+        "candidates": candidates,
+        "clip_len": 4,
+        "clip_stride": 4,
         "progress": False,
-    }  # fmt: skip
+    }
     kwargs.update(changes)
     return run_diagnosis(**kwargs)
 
@@ -111,10 +139,22 @@ def test_sealed_set_holds_only_what_real_footage_has(world):
 
 
 def test_a_slower_sealed_camera_films_as_many_frames_over_a_longer_time(world, tmp_path):
-    answer = {"seed": 2, "kind": "single", "effects": [
-        {"name": "visual.frame_rate", "stage": "camera", "strength": 0.5, "library": True}]}
-    seal_set(tmp_path / "slow", base=_spec(), seed=2, videos=4, clips_per_video=2, clip_len=4,
-             answer=answer)  # fmt: skip
+    answer = {
+        "seed": 2,
+        "kind": "single",
+        "effects": [
+            {"name": "visual.frame_rate", "stage": "camera", "strength": 0.5, "library": True}
+        ],
+    }
+    seal_set(
+        tmp_path / "slow",
+        base=_spec(),
+        seed=2,
+        videos=4,
+        clips_per_video=2,
+        clip_len=4,
+        answer=answer,
+    )
     for video in sorted((tmp_path / "slow").glob("v*")):
         assert len(list(video.iterdir())) == 8  # 15 recorded frames at half the frame rate
 
@@ -125,13 +165,19 @@ def test_the_fitted_strengths_of_the_top_candidates_are_added_to_be_measured():
     from sim2real.pipeline import REFINE_TOP, _check_fits
 
     library = candidate_library(_spec())
-    names = ["visual.sensor_noise", "visual.compression", "physics.air_damping",
-             "visual.shadows", *sorted(library)[: REFINE_TOP + 1]]  # fmt: skip
+    names = [
+        "visual.sensor_noise",
+        "visual.compression",
+        "physics.air_damping",
+        "visual.shadows",
+        *sorted(library)[: REFINE_TOP + 1],
+    ]
     plan = [(library[n], library[n].strengths(3)) for n in dict.fromkeys(names)]
-    fitted = {"visual.sensor_noise": 3.016, "visual.compression": 27.4,
-              "physics.air_damping": 0.07}  # fmt: skip
-    results = [SimpleNamespace(best_score=1.0 - 0.1 * i, fitted=fitted.get(c.name))
-               for i, (c, _) in enumerate(plan)]  # fmt: skip
+    fitted = {"visual.sensor_noise": 3.016, "visual.compression": 27.4, "physics.air_damping": 0.07}
+    results = [
+        SimpleNamespace(best_score=1.0 - 0.1 * i, fitted=fitted.get(c.name))
+        for i, (c, _) in enumerate(plan)
+    ]
     after = _check_fits(plan, results, "all")
     checked = {c.name: v for c, v in after}
     assert 3.016 in checked["visual.sensor_noise"]
@@ -162,8 +208,10 @@ def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_al
 
     ranking = {"explained": False, "top": "a", "threshold": 0.5, "look_alike": True}
     alone = {"a": 0.3, "b": 0.2, "c": 0.2}
-    shapley = {"coalitions": {"a+b": 0.8, "a+c": 0.7, "b+c": 0.9, "a+b+c": 0.95},
-               "kernel_closure": {"a+b": 0.1, "a+c": 0.6, "b+c": 1.0, "a+b+c": 0.9}}  # fmt: skip
+    shapley = {
+        "coalitions": {"a+b": 0.8, "a+c": 0.7, "b+c": 0.9, "a+b+c": 0.95},
+        "kernel_closure": {"a+b": 0.1, "a+c": 0.6, "b+c": 1.0, "a+b+c": 0.9},
+    }
     out = explained_together(ranking, shapley, alone)
     # a+b closes more of the classifier gap but not of the kernel distance; b+c lacks the
     # top; a+b+c passes both, but without a it closes 0.9 of the 0.95: a adds, so it wins
@@ -193,8 +241,14 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     noise = result.candidates["visual.sensor_noise"]
     assert noise["best_strength"] >= 2.0
     assert len(noise["strengths"]) > 3  # the grid was refined around the best strength
-    for name in ("report.html", "report.md", "report.json", "rungs.png", "candidates.png",
-                 "clips.png"):  # fmt: skip
+    for name in (
+        "report.html",
+        "report.md",
+        "report.json",
+        "rungs.png",
+        "candidates.png",
+        "clips.png",
+    ):
         assert (out / name).stat().st_size > 0, name
     shapley = result.shapley
     assert shapley is not None and "visual.sensor_noise" in shapley["players"]
@@ -250,8 +304,12 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
 
     # one more candidate: only its sets are built, everything else comes from the cache (the
     # camera swap already built the camera effects at the budget's strengths)
-    again = _diagnose(world, tmp_path / "again", candidates=[*CANDIDATES, "visual.compression"],
-                      budget=dataclasses.replace(BUDGET, joint_top=0))  # no new combinations
+    again = _diagnose(
+        world,
+        tmp_path / "again",
+        candidates=[*CANDIDATES, "visual.compression"],
+        budget=dataclasses.replace(BUDGET, joint_top=0),
+    )  # no new combinations
     library = candidate_library(_spec())
     grid = set(library["visual.compression"].strengths(BUDGET.strengths))
     new_sets = len(set(again.candidates["visual.compression"]["strengths"]) - grid)
@@ -270,8 +328,9 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
         ({"n_jobs": 0}, "n_jobs must be an integer >= 1"),
     ],
 )
-def test_bad_arguments_fail_with_one_clear_message_and_write_nothing(world, tmp_path, change,
-                                                                    message):  # fmt: skip
+def test_bad_arguments_fail_with_one_clear_message_and_write_nothing(
+    world, tmp_path, change, message
+):
     with pytest.raises((ValueError, FileNotFoundError), match=message):
         _diagnose(world, tmp_path / "out", **change)
     assert not (tmp_path / "out").exists()
@@ -301,11 +360,13 @@ def _real_folder(path, rows, frames=8):
         ([("video", "stiffness")], r"lacks column\(s\) \['density'\]"),
         ([("video", "stiffness", "density")], "lists no videos"),
         ([("video", "stiffness", "density"), ("a", "soft", "0.3")], "must be a number"),
-        ([HEADER, *[(f"v{i}", "1", "-0.3", "15") for i in range(4)]],
-         r"column 'density' must be > 0"),
+        (
+            [HEADER, *[(f"v{i}", "1", "-0.3", "15") for i in range(4)]],
+            r"column 'density' must be > 0",
+        ),
         ([HEADER, ("v0", "1", "0.3", "15"), ("v1", "2", "0.3", "15")], "at least 4"),
     ],
-)  # fmt: skip
+)
 def test_bad_real_folders_fail_with_one_clear_message(world, tmp_path, rows, message):
     real = _real_folder(tmp_path / "real", rows)
     with pytest.raises(ValueError, match=message):
@@ -332,15 +393,24 @@ def test_command_lines_compose_and_fail_with_one_line(tmp_path):
     import sys
 
     done = subprocess.run(
-        [sys.executable, "-m", "sim2real.diagnose", f"real_dir={tmp_path}/none",
-         f"run={tmp_path}/none", f"hydra.run.dir={tmp_path}/hydra"],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "sim2real.diagnose",
+            f"real_dir={tmp_path}/none",
+            f"run={tmp_path}/none",
+            f"hydra.run.dir={tmp_path}/hydra",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1].startswith("error: run: ")
     for module in ("sim2real.study.seal", "sim2real.study.validate"):
-        done = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True,
-                              text=True, timeout=300)  # fmt: skip
+        done = subprocess.run(
+            [sys.executable, "-m", module, "--help"], capture_output=True, text=True, timeout=300
+        )
         assert done.returncode == 0 and "usage:" in done.stdout
 
 
@@ -360,13 +430,25 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     run = tmp_path / "logs" / "train" / "tiny"
     configs = str(Path(__file__).resolve().parents[2] / "configs")
     with initialize_config_dir(config_dir=configs, version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[
-            f"dataset.dir={data}", f"paths.output_dir={run}", f"paths.log_dir={run.parent}",
-            f"paths.work_dir={run}", "encoder.width=0.25", "encoder.feature_dim=16",
-            "data.batch_size=2", "data.num_workers=0", "trainer.max_epochs=1", "~logger",
-            "callbacks.progress_bar=null", "callbacks.lr_monitor=null", "test=false",
-            "trainer.log_every_n_steps=1",
-        ])  # fmt: skip
+        cfg = compose(
+            config_name="train",
+            overrides=[
+                f"dataset.dir={data}",
+                f"paths.output_dir={run}",
+                f"paths.log_dir={run.parent}",
+                f"paths.work_dir={run}",
+                "encoder.width=0.25",
+                "encoder.feature_dim=16",
+                "data.batch_size=2",
+                "data.num_workers=0",
+                "trainer.max_epochs=1",
+                "~logger",
+                "callbacks.progress_bar=null",
+                "callbacks.lr_monitor=null",
+                "test=false",
+                "trainer.log_every_n_steps=1",
+            ],
+        )
     (run / ".hydra").mkdir(parents=True)
     OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
     train_entry.train(cfg)
@@ -382,8 +464,10 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
         every = section["score_correlations"][label]  # every score, pooled and per wind
         assert set(every) >= {"all"} and len(every) > 1
         assert set(every["all"]) == {"material_score", "stretch_score", "bend_score"}
-        assert every["all"]["material_score"]["stiffness"] == section["correlations"][label][
-            "stiffness"]  # fmt: skip
+        assert (
+            every["all"]["material_score"]["stiffness"]
+            == section["correlations"][label]["stiffness"]
+        )
     assert set(section["rungs"]) == set(result.rungs)
     noise = result.candidates["visual.sensor_noise"]
     predicted = {**noise["closure"], **noise["closure_auc"]}  # the classifier's where scored
@@ -391,8 +475,11 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     # predictivity over the run's best and last checkpoints and both fine-tuned epochs
     srcc = section["predictivity"]
     assert [Path(r["checkpoint"]).name for r in srcc["rows"]] == [
-        "best.ckpt", "last.ckpt", "epoch00.ckpt", "epoch01.ckpt",
-    ]  # fmt: skip
+        "best.ckpt",
+        "last.ckpt",
+        "epoch00.ckpt",
+        "epoch01.ckpt",
+    ]
     assert all(-1 <= r[k] <= 1 for r in srcc["rows"] for k in ("sim", "sim_effect", "real"))
     assert srcc["before"]["checkpoints"] == srcc["after"]["checkpoints"] == 4
     text = (out / "report.md").read_text()
@@ -406,7 +493,8 @@ def _merged(out: Path, report: dict, answer: Path) -> None:
     """A merged validation folder holding set 1's finished report and its answer."""
     (out / "reports" / "set1").mkdir(parents=True)
     (out / "reports" / "set1" / "report.json").write_text(
-        json.dumps(as_diagnosis(report).to_json()))
+        json.dumps(as_diagnosis(report).to_json())
+    )
     (out / "answers").mkdir()
     (out / "answers" / "set1.json").write_text(answer.read_text())
 
@@ -416,15 +504,38 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
 
     root, out = world["root"], tmp_path / "merged"
     report = {
-        "ranking": {"ranking": ["visual.sensor_noise", "visual.defocus_blur"],
-                    "top": "visual.sensor_noise", "explained": True},
-        "candidates": {"visual.sensor_noise": {"stage": "camera", "best_score": 0.9,
-                                               "strength_interval": [4.0, 8.0]}},
-        "scored_rungs": ["pixel"], "residual_stage": "", "inputs": {"budget": "quick"},
-    }  # fmt: skip
+        "ranking": {
+            "ranking": ["visual.sensor_noise", "visual.defocus_blur"],
+            "top": "visual.sensor_noise",
+            "explained": True,
+        },
+        "candidates": {
+            "visual.sensor_noise": {
+                "stage": "camera",
+                "best_score": 0.9,
+                "strength_interval": [4.0, 8.0],
+            }
+        },
+        "scored_rungs": ["pixel"],
+        "residual_stage": "",
+        "inputs": {"budget": "quick"},
+    }
     _merged(out, report, world["answer"])
-    args = ["--kinds", "single:2", "--first-seed", "1", "--sets", "0", "--finished-only",
-            "--run", str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]
+    args = [
+        "--kinds",
+        "single:2",
+        "--first-seed",
+        "1",
+        "--sets",
+        "0",
+        "--finished-only",
+        "--run",
+        str(root / "run"),
+        "--data-dir",
+        str(root / "data"),
+        "--out",
+        str(out),
+    ]
     validate(args)
     rows = json.loads((out / "validation.json").read_text())["sets"]
     assert [r["seed"] for r in rows] == [1] and rows[0]["top1"] and rows[0]["stage_correct"]
@@ -464,24 +575,51 @@ def test_a_shard_reads_the_reruns_of_its_stability_position(world, tmp_path):
 
     root, out = world["root"], tmp_path / "merged"
     report = {
-        "ranking": {"ranking": ["visual.sensor_noise", "visual.defocus_blur", "visual.shadows"],
-                    "top": "visual.sensor_noise", "explained": True},
-        "candidates": {n: {"stage": "camera", "best_score": s, "strength_interval": [4.0, 8.0]}
-                       for n, s in (("visual.sensor_noise", 0.9), ("visual.defocus_blur", 0.2),
-                                    ("visual.shadows", 0.1))},
-        "scored_rungs": ["pixel"], "residual_stage": "", "inputs": {"budget": "quick"},
-    }  # fmt: skip
+        "ranking": {
+            "ranking": ["visual.sensor_noise", "visual.defocus_blur", "visual.shadows"],
+            "top": "visual.sensor_noise",
+            "explained": True,
+        },
+        "candidates": {
+            n: {"stage": "camera", "best_score": s, "strength_interval": [4.0, 8.0]}
+            for n, s in (
+                ("visual.sensor_noise", 0.9),
+                ("visual.defocus_blur", 0.2),
+                ("visual.shadows", 0.1),
+            )
+        },
+        "scored_rungs": ["pixel"],
+        "residual_stage": "",
+        "inputs": {"budget": "quick"},
+    }
     _merged(out, report, world["answer"])
-    swapped = {**report, "ranking": {**report["ranking"], "ranking": [
-        "visual.sensor_noise", "visual.shadows", "visual.defocus_blur"]}}  # fmt: skip
+    swapped = {
+        **report,
+        "ranking": {
+            **report["ranking"],
+            "ranking": ["visual.sensor_noise", "visual.shadows", "visual.defocus_blur"],
+        },
+    }
     for sim_seed, stored in ((1, report), (2, swapped)):
         (out / "reports" / f"set1-sim{sim_seed}").mkdir()
         (out / "reports" / f"set1-sim{sim_seed}" / "report.json").write_text(
-            json.dumps(as_diagnosis(stored).to_json()))
+            json.dumps(as_diagnosis(stored).to_json())
+        )
     # plan single:3 from seed 0: --stability 2 reruns positions 0 and 2 (seeds 0 and 2), not
     # seed 1, so the finished set 1 is scored without a tau
-    args = ["--kinds", "single:3", "--first-seed", "0", "--finished-only", "--run",
-            str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]  # fmt: skip
+    args = [
+        "--kinds",
+        "single:3",
+        "--first-seed",
+        "0",
+        "--finished-only",
+        "--run",
+        str(root / "run"),
+        "--data-dir",
+        str(root / "data"),
+        "--out",
+        str(out),
+    ]
     validate([*args, "--sets", "0", "--stability", "2"])
     (row,) = json.loads((out / "validation.json").read_text())["sets"]
     assert "kendall_tau" not in row
@@ -496,18 +634,41 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
     from sim2real.study.validate import main as validate
 
     root, out = world["root"], tmp_path / "merged"
-    fit = CandidateResult("visual.sensor_noise", "camera", (2.0, 6.0), {"pixel": [0.1, 0.0]},
-                          {"pixel": [0.4, 0.9]}, [0.4, 0.9])  # fmt: skip
+    fit = CandidateResult(
+        "visual.sensor_noise",
+        "camera",
+        (2.0, 6.0),
+        {"pixel": [0.1, 0.0]},
+        {"pixel": [0.4, 0.9]},
+        [0.4, 0.9],
+    )
     null = CandidateResult("S'", "null", (None,), {"pixel": [0.1]}, {"pixel": [0.0]}, [0.0])
     report = {
-        "candidates": {fit.name: {**fit.to_json(), "best": fit.best}}, "null": null.to_json(),
-        "ranking": rank_candidates([fit], null, ["pixel"]), "shapley": None, "stacked": None,
-        "scored_rungs": ["pixel"], "residual_stage": "physics (stored by an older rule)",
+        "candidates": {fit.name: {**fit.to_json(), "best": fit.best}},
+        "null": null.to_json(),
+        "ranking": rank_candidates([fit], null, ["pixel"]),
+        "shapley": None,
+        "stacked": None,
+        "scored_rungs": ["pixel"],
+        "residual_stage": "physics (stored by an older rule)",
         "location": {"significant": ["pixel"], "first_significant_layer": None},
-    }  # fmt: skip
+    }
     _merged(out, report, world["answer"])
-    args = ["--kinds", "single:1", "--first-seed", "1", "--sets", "0", "--rescore",
-            "--run", str(root / "run"), "--data-dir", str(root / "data"), "--out", str(out)]
+    args = [
+        "--kinds",
+        "single:1",
+        "--first-seed",
+        "1",
+        "--sets",
+        "0",
+        "--rescore",
+        "--run",
+        str(root / "run"),
+        "--data-dir",
+        str(root / "data"),
+        "--out",
+        str(out),
+    ]
     validate(args)
     rows = json.loads((out / "rescored.json").read_text())["sets"]
     assert rows[0]["top1"] and rows[0]["replayed"]
@@ -548,8 +709,9 @@ def test_a_stored_diagnosis_reopens_and_scores_as_it_did(world, tmp_path):
     noise = stored.candidates["visual.sensor_noise"]
     best = noise["strengths"][noise["best"]]
     both = assignment({"visual.sensor_noise": best, "visual.white_balance": 0.3})
-    nominal, alone, together = reopened.values([(), assignment({"visual.sensor_noise": best}),
-                                                both])  # fmt: skip
+    nominal, alone, together = reopened.values(
+        [(), assignment({"visual.sensor_noise": best}), both]
+    )
     assert nominal.closure == 0.0 and np.all(nominal.replicates == 0.0)
     assert alone.closure > 0.3
     assert np.isfinite(together.closure) and together.replicates.shape == (BUDGET.n_boot,)

@@ -17,9 +17,12 @@ def _domain(seed: int, groups: int, shift: float = 0.0) -> LadderFeatures:
     motion = np.repeat(rng.normal(0, 0.3, (groups, DIM)), CLIPS, 0) + rng.normal(size=(rows, DIM))
     motion[:, 0] += shift
     return LadderFeatures(
-        rungs={"pixel": rng.normal(size=(rows, DIM)), "motion": motion}, groups=ids,
-        class_id=np.zeros(rows, dtype=int), stiffness=np.ones(rows), density=np.ones(rows),
-    )  # fmt: skip
+        rungs={"pixel": rng.normal(size=(rows, DIM)), "motion": motion},
+        groups=ids,
+        class_id=np.zeros(rows, dtype=int),
+        stiffness=np.ones(rows),
+        density=np.ones(rows),
+    )
 
 
 def test_more_draws_find_a_weak_shift_that_one_draw_mostly_misses_and_name_its_rung():
@@ -37,8 +40,10 @@ def test_more_draws_find_a_weak_shift_that_one_draw_mostly_misses_and_name_its_r
 
 def test_nominal_draws_against_a_nominal_real_set_stay_below_the_level_mostly():
     draws = [_domain(s, groups=10) for s in range(4)]
-    found = [pooled_detection(draws, _domain(50 + s, groups=30), [4], n_perm=99, seed=s)[0]
-             for s in range(10)]  # fmt: skip
+    found = [
+        pooled_detection(draws, _domain(50 + s, groups=30), [4], n_perm=99, seed=s)[0]
+        for s in range(10)
+    ]
     assert sum(f["detected"] for f in found) <= 2
 
 

@@ -6,10 +6,18 @@ from sim2real.report_html import blocks, render_html
 
 def test_lines_and_tables_become_blocks_and_the_first_paragraph_leads():
     items = [
-        "# Title", "", "The gap is 60 % `physics` (air damping);", "**4 %** is left.", "",
-        "![shares.png](shares.png)", "## Evidence", "- one item", "  continued", "- two",
+        "# Title",
+        "",
+        "The gap is 60 % `physics` (air damping);",
+        "**4 %** is left.",
+        "",
+        "![shares.png](shares.png)",
+        "## Evidence",
+        "- one item",
+        "  continued",
+        "- two",
         markdown_table(["factor", "share"], [["a<b", "60 %"], ["`c`", "4 %"]]),
-    ]  # fmt: skip
+    ]
     got = blocks(items)
     assert [b["kind"] for b in got] == ["h1", "p", "figure", "h2", "ul", "table"]
     assert got[1]["lead"] and ("code", "physics") in got[1]["spans"]
@@ -33,14 +41,20 @@ def test_the_report_says_how_the_factors_were_chosen():
     from sim2real.report import _selection_lines
 
     path = [
-        {"step": 1, "added": "visual.defocus_blur", "screened": {},
-         "measured": {"scene.pose": 0.09, "visual.defocus_blur": 0.46}},
+        {
+            "step": 1,
+            "added": "visual.defocus_blur",
+            "screened": {},
+            "measured": {"scene.pose": 0.09, "visual.defocus_blur": 0.46},
+        },
         {"step": 2, "added": None, "screened": {}, "measured": {"scene.pose": 0.47}},
         {"round": 1, "factor": "visual.defocus_blur", "tried": [], "closure": [], "kept": 3.0},
-    ]  # fmt: skip
+    ]
     lines = _selection_lines(path)
     table = next(line for line in lines if str(line).startswith("| step"))
     rows = str(table).splitlines()[2:]
-    assert rows == ["| 1 | visual.defocus_blur | visual.defocus_blur 46 %, scene.pose 9 % |",
-                    "| 2 | none (stop) | scene.pose 47 % |"]  # fmt: skip
+    assert rows == [
+        "| 1 | visual.defocus_blur | visual.defocus_blur 46 %, scene.pose 9 % |",
+        "| 2 | none (stop) | scene.pose 47 % |",
+    ]
     assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show

@@ -13,8 +13,9 @@ from tests.sim2real.reports import as_diagnosis
 def _fit(name, score, stage="camera", strengths=(1.0, 2.0)):
     """A stored candidate closing ``score`` of the classifier gap at its second strength."""
     scores = [score / 2, score]
-    return CandidateResult(name, stage, strengths, {"pixel": [0.1, 0.1]},
-                           {"pixel": [score / 2, score]}, scores)  # fmt: skip
+    return CandidateResult(
+        name, stage, strengths, {"pixel": [0.1, 0.1]}, {"pixel": [score / 2, score]}, scores
+    )
 
 
 def _report(fits, null_score=-0.2, kernel_rungs=(), shapley=None, stacked=None):
@@ -25,8 +26,11 @@ def _report(fits, null_score=-0.2, kernel_rungs=(), shapley=None, stacked=None):
     ranking = rank_candidates(fits, null, list(kernel_rungs))
     report = {
         "candidates": {f.name: {**f.to_json(), "best": f.best} for f in fits},
-        "null": null.to_json(), "ranking": ranking, "shapley": shapley, "stacked": stacked,
-    }  # fmt: skip
+        "null": null.to_json(),
+        "ranking": ranking,
+        "shapley": shapley,
+        "stacked": stacked,
+    }
     return as_diagnosis(json.loads(json.dumps(json_safe(report))))  # as run_diagnosis writes it
 
 
@@ -41,14 +45,18 @@ def test_today_s_rules_give_back_the_stored_ranking_ties_and_nan_included():
     report = _report(fits, kernel_rungs=["pixel"])
     assert report.candidates["visual.d"]["mmd2"]["pixel"][0] is None  # JSON has no NaN
     report = dataclasses.replace(  # as stored
-        report, candidates=dict(sorted(report.candidates.items(), reverse=True)))
+        report, candidates=dict(sorted(report.candidates.items(), reverse=True))
+    )
     again, replayed = _decided(report)
     assert replayed and again == report.ranking
     assert again.ranking == ["visual.b", "visual.d", "visual.a", "visual.c"]  # ties: stored
     read = CandidateResult.from_json(report.candidates["visual.d"])
     assert math.isnan(read.mmd2["pixel"][0]) and read.mmd2["pixel"][1] == 0.1
     assert (read.strengths, read.closure, read.score) == (
-        undefined.strengths, undefined.closure, undefined.score)
+        undefined.strengths,
+        undefined.closure,
+        undefined.score,
+    )
 
 
 def test_another_threshold_changes_only_the_open_set_decision():
@@ -63,8 +71,10 @@ def test_another_threshold_changes_only_the_open_set_decision():
 
 
 def test_a_stored_coalition_or_stacked_fit_is_decided_again():
-    shapley = {"coalitions": {"visual.a+visual.b": 0.8},
-               "kernel_closure": {"visual.a+visual.b": 0.7}}  # fmt: skip
+    shapley = {
+        "coalitions": {"visual.a+visual.b": 0.8},
+        "kernel_closure": {"visual.a+visual.b": 0.7},
+    }
     fits = [_fit("visual.a", 0.4), _fit("visual.b", 0.3)]
     together, replayed = _decided(_report(fits, shapley=shapley))
     assert replayed and together.explained_by == ["visual.a", "visual.b"]

@@ -41,8 +41,13 @@ def test_a_new_rung_is_measured_on_every_clip(with_brightness):
     assert set(features) == {"pixel", "motion", "brightness"}
     assert features["brightness"].shape == (3, 1)
 
-    clips = ClipSet(frames=_clips(), groups=np.array(["a", "b", "c"]), class_id=np.zeros(3, int),
-                    stiffness=np.ones(3), density=np.ones(3))  # fmt: skip
+    clips = ClipSet(
+        frames=_clips(),
+        groups=np.array(["a", "b", "c"]),
+        class_id=np.zeros(3, int),
+        stiffness=np.ones(3),
+        density=np.ones(3),
+    )
     ladder = ladder_features(clips, (4, 28, 4, 28), net=None)
     assert "brightness" in ladder.rungs
 

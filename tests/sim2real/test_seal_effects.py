@@ -109,34 +109,48 @@ def test_no_open_set_effect_is_a_library_effect():
 @pytest.fixture(scope="module")
 def cloth():
     spec = DatasetSpec(
-        motion="wind", scenario=ScenarioWind(resolution_level=1, settle_time=0.2),
-        preset=SizePreset("tiny", 3, 1, 1, 1, frames_per_clip=6), classes=(0, 20, 33, 53),
-        lead_in=0.2, sim=SimSettings(dtype="float32", max_dt=0.00834, settle_max_dt=0.0167),
-        camera=CameraSpec.wind(64, 64), texture_size=128, texture_mode="grid",
-    )  # fmt: skip
+        motion="wind",
+        scenario=ScenarioWind(resolution_level=1, settle_time=0.2),
+        preset=SizePreset("tiny", 3, 1, 1, 1, frames_per_clip=6),
+        classes=(0, 20, 33, 53),
+        lead_in=0.2,
+        sim=SimSettings(dtype="float32", max_dt=0.00834, settle_max_dt=0.0167),
+        camera=CameraSpec.wind(64, 64),
+        texture_size=128,
+        texture_mode="grid",
+    )
     material = ClothMaterial.from_wang(
-        load_wang_material(BASIS_MATERIAL), stretch_mult=[1.0], bend_mult=[1.0],
+        load_wang_material(BASIS_MATERIAL),
+        stretch_mult=[1.0],
+        bend_mult=[1.0],
         dtype=spec.sim.torch_dtype(),
-    )  # fmt: skip
+    )
     stop = spec.lead_in_frames + 6
     seq = simulate(
-        spec.scenario, material, seeds=[3], wind_levels=[2], fps=spec.preset.fps,
-        record_time=stop / spec.preset.fps, effects=spec.physics, settings=spec.sim,
-    )  # fmt: skip
+        spec.scenario,
+        material,
+        seeds=[3],
+        wind_levels=[2],
+        fps=spec.preset.fps,
+        record_time=stop / spec.preset.fps,
+        effects=spec.physics,
+        settings=spec.sim,
+    )
     return spec, seq, SimulationPlan(-1, 0, 3, 2, "test"), stop
 
 
 def _render(cloth, *effects, seq=None):
     spec, recorded, plan, stop = cloth
     entries = [{"name": n, "strength": s, "library": False} for n, s in effects]
-    return render_sealed_video(spec, seq or recorded, 0, plan, spec.lead_in_frames, stop,
-                               rng_seed=[5], effects=entries)  # fmt: skip
+    return render_sealed_video(
+        spec, seq or recorded, 0, plan, spec.lead_in_frames, stop, rng_seed=[5], effects=entries
+    )
 
 
 def _laplacian_energy(frames):
-    return float(np.mean([
-        np.var(cv2.Laplacian(f.astype(np.float32).mean(-1), cv2.CV_32F)) for f in frames
-    ]))  # fmt: skip
+    return float(
+        np.mean([np.var(cv2.Laplacian(f.astype(np.float32).mean(-1), cv2.CV_32F)) for f in frames])
+    )
 
 
 @pytest.fixture
@@ -145,9 +159,14 @@ def flat_background(monkeypatch):
     import datasets.generation as generation
 
     look = generation.sim_look
-    monkeypatch.setattr(generation, "sim_look", lambda spec, plan: (
-        look(spec, plan)[0], np.full((spec.camera.height, spec.camera.width, 3), 128, np.uint8)
-    ))  # fmt: skip
+    monkeypatch.setattr(
+        generation,
+        "sim_look",
+        lambda spec, plan: (
+            look(spec, plan)[0],
+            np.full((spec.camera.height, spec.camera.width, 3), 128, np.uint8),
+        ),
+    )
 
 
 def test_barrel_distortion_moves_the_cloth_inwards_without_blurring_it(cloth, flat_background):
@@ -184,11 +203,22 @@ def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_p
     spec = cloth[0]
     written = {}
     for name, effects in (("plain", []), ("rolling", [("visual.rolling_shutter", 1.0)])):
-        answer = {"seed": 4, "kind": "single", "effects": [
-            {"name": n, "stage": "camera", "strength": s, "library": True} for n, s in effects
-        ]}  # fmt: skip
-        seal_set(tmp_path / name, base=spec, seed=4, videos=4, clips_per_video=1, clip_len=4,
-                 answer=answer)  # fmt: skip
+        answer = {
+            "seed": 4,
+            "kind": "single",
+            "effects": [
+                {"name": n, "stage": "camera", "strength": s, "library": True} for n, s in effects
+            ],
+        }
+        seal_set(
+            tmp_path / name,
+            base=spec,
+            seed=4,
+            videos=4,
+            clips_per_video=1,
+            clip_len=4,
+            answer=answer,
+        )
         written[name] = sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*"))
     assert written["plain"] == written["rolling"]
     first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0001.png")) for n in written]
@@ -201,8 +231,17 @@ def test_a_sealed_video_can_take_its_image_effects_from_the_twins(cloth):
     noisy = library["visual.sensor_noise"].apply(spec, 6.0)
 
     def render(spec, twins):
-        return render_sealed_video(spec, recorded, 0, plan, spec.lead_in_frames, stop,
-                                   rng_seed=[5], effects=[], image_twins=twins)  # fmt: skip
+        return render_sealed_video(
+            spec,
+            recorded,
+            0,
+            plan,
+            spec.lead_in_frames,
+            stop,
+            rng_seed=[5],
+            effects=[],
+            image_twins=twins,
+        )
 
     plain = render(spec, False).astype(float)
     by_renderer = render(noisy, False).astype(float)

@@ -6,14 +6,21 @@ import sys
 import pytest
 
 
-@pytest.mark.parametrize(("override", "field"), [
-    ("columns=[]", "columns"), ("columns=stiffness", "columns"), ("group=[a]", "group"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("override", "field"),
+    [
+        ("columns=[]", "columns"),
+        ("columns=stiffness", "columns"),
+        ("group=[a]", "group"),
+    ],
+)
 def test_shrink_names_a_bad_columns_or_group_field(tmp_path, override, field):
     done = subprocess.run(
         [sys.executable, "-m", "sim2real.shrink", f"report={tmp_path}", override],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode != 0
     assert done.stderr.strip().splitlines()[-1].startswith(f"error: {field} must be")
     assert "Traceback" not in done.stderr

@@ -47,8 +47,17 @@ def test_a_partner_that_alone_widens_the_gap_explains_it_on_top_of_the_leader():
     leader = _result(SHAKE.name, (0.001, 0.003, 0.012), (0.1, 0.42, 0.3))
     world = World(lambda label: _pair_closure(label) if "motion_blur" in label else 0.2)
     partners = [(BLUR, (0.1, 0.316, 1.0), -0.05), (NOISE, (0.5, 2.0, 8.0), 0.06)]
-    fit = stacked_fit(SPEC, SHAKE, leader, (0.001, 0.003, 0.012), partners, world.build,
-                      world.score, kernel=lambda r: world.kernel, threshold=THRESHOLD)  # fmt: skip
+    fit = stacked_fit(
+        SPEC,
+        SHAKE,
+        leader,
+        (0.001, 0.003, 0.012),
+        partners,
+        world.build,
+        world.score,
+        kernel=lambda r: world.kernel,
+        threshold=THRESHOLD,
+    )
     assert fit["best"] == BLUR.name and fit["best_strength"] == 1.0
     # The refit moved the leader from its own best (0.003) towards the truth (0.012).
     assert fit["refit"]["best_strength"] == 0.012 and fit["leader_strength"] == 0.012
@@ -68,26 +77,43 @@ def test_a_partner_that_alone_widens_the_gap_explains_it_on_top_of_the_leader():
 def test_a_pair_explains_only_under_the_coalition_rules(case, pair, kernel, alone):
     leader = _result(SHAKE.name, (0.003,), (0.42,))
     world = World(lambda label: pair, kernel=kernel)
-    fit = stacked_fit(SPEC, SHAKE, leader, (0.003,), [(BLUR, (1.0,), alone)], world.build,
-                      world.score, kernel=lambda r: world.kernel, threshold=THRESHOLD)  # fmt: skip
+    fit = stacked_fit(
+        SPEC,
+        SHAKE,
+        leader,
+        (0.003,),
+        [(BLUR, (1.0,), alone)],
+        world.build,
+        world.score,
+        kernel=lambda r: world.kernel,
+        threshold=THRESHOLD,
+    )
     assert not fit["explained"], case
     assert fit["refit"] is None  # one leader strength: nothing to refit
 
 
 def test_a_leader_that_simulates_is_held_and_only_re_rendering_candidates_are_partners():
-    ranking = {"explained": False, "top": LIFT.name, "threshold": THRESHOLD,
-               "kernel_rungs": [], "look_alike": False}  # fmt: skip
+    ranking = {
+        "explained": False,
+        "top": LIFT.name,
+        "threshold": THRESHOLD,
+        "kernel_rungs": [],
+        "look_alike": False,
+    }
     plan = [(LIFT, (0.1, 0.35, 1.2)), (BLUR, (0.1, 1.0)), (SHAKE, (0.001, 0.012))]
-    results = [_result(LIFT.name, plan[0][1], (0.1, 0.45, 0.2)),
-               _result(BLUR.name, plan[1][1], (0.0, 0.1)),
-               _result(SHAKE.name, plan[2][1], (0.0, 0.05))]  # fmt: skip
+    results = [
+        _result(LIFT.name, plan[0][1], (0.1, 0.45, 0.2)),
+        _result(BLUR.name, plan[1][1], (0.0, 0.1)),
+        _result(SHAKE.name, plan[2][1], (0.0, 0.05)),
+    ]
     world = World(lambda label: 0.9 if "camera_shake" in label else 0.3)
 
     class Budget:
         strengths = 3
 
-    ranked, fit = _stack_on_leader(ranking, plan, results, SPEC, Budget, build=world.build,
-                                   score=world.score)  # fmt: skip
+    ranked, fit = _stack_on_leader(
+        ranking, plan, results, SPEC, Budget, build=world.build, score=world.score
+    )
     assert set(fit["partners"]) == {BLUR.name, SHAKE.name}
     assert all(label.startswith(f"stack:{LIFT.name}@0.35+") for label in world.built)
     assert fit["refit"] is None and fit["best"] == SHAKE.name
@@ -97,8 +123,10 @@ def test_a_leader_that_simulates_is_held_and_only_re_rendering_candidates_are_pa
 
 def test_no_stacked_fit_when_explained_or_the_leader_closes_too_little():
     plan = [(SHAKE, (0.001, 0.012)), (BLUR, (0.1, 1.0))]
-    weak = [_result(SHAKE.name, plan[0][1], (0.0, STACK_MIN_LEADER - 0.01)),
-            _result(BLUR.name, plan[1][1], (0.0, 0.1))]  # fmt: skip
+    weak = [
+        _result(SHAKE.name, plan[0][1], (0.0, STACK_MIN_LEADER - 0.01)),
+        _result(BLUR.name, plan[1][1], (0.0, 0.1)),
+    ]
 
     def never(*args):
         raise AssertionError("no set may be built")
@@ -108,8 +136,10 @@ def test_no_stacked_fit_when_explained_or_the_leader_closes_too_little():
         ({"explained": False, "top": None}, weak),
         ({"explained": False, "top": SHAKE.name, "threshold": THRESHOLD}, weak),
     ]:
-        assert _stack_on_leader(ranking, plan, results, None, None, build=never,
-                                score=never) == (ranking, None)  # fmt: skip
+        assert _stack_on_leader(ranking, plan, results, None, None, build=never, score=never) == (
+            ranking,
+            None,
+        )
 
 
 def test_the_report_lists_the_partners_best_first():
@@ -117,9 +147,17 @@ def test_the_report_lists_the_partners_best_first():
 
     leader = _result(SHAKE.name, (0.003,), (0.42,))
     world = World(lambda label: 0.9 if "motion_blur" in label else 0.3)
-    fit = stacked_fit(SPEC, SHAKE, leader, (0.003,), [(NOISE, (0.5, 2.0), 0.0),
-                      (BLUR, (0.1, 1.0), 0.0)], world.build, world.score,
-                      kernel=lambda r: 0.8, threshold=THRESHOLD)  # fmt: skip
+    fit = stacked_fit(
+        SPEC,
+        SHAKE,
+        leader,
+        (0.003,),
+        [(NOISE, (0.5, 2.0), 0.0), (BLUR, (0.1, 1.0), 0.0)],
+        world.build,
+        world.score,
+        kernel=lambda r: 0.8,
+        threshold=THRESHOLD,
+    )
     text = "\n".join(_stacked_lines(fit))
     assert "closes 90 % (kernel 80 %) and explains the gap" in text
     assert text.index(BLUR.name) < text.index(NOISE.name)

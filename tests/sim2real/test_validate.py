@@ -18,21 +18,27 @@ from tests.sim2real.reports import as_diagnosis
 
 def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="none"):
     ranking = ranking or [top, "visual.white_balance", "physics.air_damping", "visual.shadows"]
-    stages = {"visual.sensor_noise": "camera", "visual.white_balance": "camera",
-              "physics.air_damping": "physics", "visual.shadows": "appearance"}  # fmt: skip
-    return as_diagnosis({
-        "ranking": {"ranking": ranking, "top": top, "explained": explained},
-        "residual_stage": residual,
-        "scored_rungs": ["pixel"],  # a diagnosis that found a gap
-        "candidates": {
-            n: {
-                "stage": stages[n],
-                "best_score": 0.8 if n == top else 0.1,
-                "strength_interval": list(interval),
-            }
-            for n in ranking
-        },
-    })
+    stages = {
+        "visual.sensor_noise": "camera",
+        "visual.white_balance": "camera",
+        "physics.air_damping": "physics",
+        "visual.shadows": "appearance",
+    }
+    return as_diagnosis(
+        {
+            "ranking": {"ranking": ranking, "top": top, "explained": explained},
+            "residual_stage": residual,
+            "scored_rungs": ["pixel"],  # a diagnosis that found a gap
+            "candidates": {
+                n: {
+                    "stage": stages[n],
+                    "best_score": 0.8 if n == top else 0.1,
+                    "strength_interval": list(interval),
+                }
+                for n in ranking
+            },
+        }
+    )
 
 
 def _answer(name, strength=2.0, kind="single", stage="camera", library=True):
@@ -44,8 +50,9 @@ def test_a_correct_diagnosis_scores_everything():
     row = score_set(_result("visual.sensor_noise"), _answer("visual.sensor_noise"))
     assert row["stage_correct"] and row["top1"] and row["top3"]
     assert row["strength_in_interval"] and row["gap_closed"] == 0.8
-    outside = score_set(_result("visual.sensor_noise", interval=(4.0, 8.0)),
-                        _answer("visual.sensor_noise"))  # fmt: skip
+    outside = score_set(
+        _result("visual.sensor_noise", interval=(4.0, 8.0)), _answer("visual.sensor_noise")
+    )
     assert outside["strength_in_interval"] is False
 
 
@@ -57,8 +64,9 @@ def test_without_a_significant_gap_nothing_counts_as_ranked():
 
 def test_a_gap_whose_candidates_all_score_zero_ranks_nothing():
     # S's own classifier gap at its floor: every score 0, the order is the library's
-    result = dataclasses.replace(_result("visual.sensor_noise", explained=False),
-                                 scored_rungs=["pixel"])
+    result = dataclasses.replace(
+        _result("visual.sensor_noise", explained=False), scored_rungs=["pixel"]
+    )
     for entry in result.candidates.values():
         entry["best_score"] = 0.0
     row = score_set(result, _answer("visual.sensor_noise"))
@@ -68,9 +76,15 @@ def test_a_gap_whose_candidates_all_score_zero_ranks_nothing():
 
 
 def test_a_wrong_top_in_the_right_stage_counts_as_stage_and_top3_only():
-    result = _result("visual.white_balance",
-                     ranking=["visual.white_balance", "visual.sensor_noise", "visual.shadows",
-                              "physics.air_damping"])  # fmt: skip
+    result = _result(
+        "visual.white_balance",
+        ranking=[
+            "visual.white_balance",
+            "visual.sensor_noise",
+            "visual.shadows",
+            "physics.air_damping",
+        ],
+    )
     row = score_set(result, _answer("visual.sensor_noise"))
     assert row["stage_correct"] and not row["top1"] and row["top3"]
     assert row["gap_closed"] == 0.1
@@ -81,12 +95,17 @@ def test_open_sets_score_false_attribution_and_residual_stage():
     named = score_set(_result("visual.sensor_noise"), answer)
     assert named["false_attribution"] and "top1" not in named
     residual = score_set(
-        _result("visual.sensor_noise", explained=False,
-                residual="appearance or camera (the pixel statistics differ)"), answer,
-    )  # fmt: skip
+        _result(
+            "visual.sensor_noise",
+            explained=False,
+            residual="appearance or camera (the pixel statistics differ)",
+        ),
+        answer,
+    )
     assert not residual["false_attribution"] and residual["stage_correct"]
-    summary = summarise([named, residual, score_set(_result("visual.sensor_noise"),
-                                                    _answer("visual.sensor_noise"))])  # fmt: skip
+    summary = summarise(
+        [named, residual, score_set(_result("visual.sensor_noise"), _answer("visual.sensor_noise"))]
+    )
     assert summary["open_false_attribution"] == 0.5 and summary["open_n"] == 2
     assert summary["top1"] == 1.0 and summary["top1_n"] == 1
 
@@ -101,15 +120,15 @@ def test_a_diagnosis_without_a_gap_ranks_nothing_and_is_left_out_of_the_tau():
     order, swapped = list("abcdef"), list("abcdfe")
     library = sorted(order, reverse=True)  # a no-gap diagnosis lists the library's order
     scored = {n: {"best_score": 0.1 * i} for i, n in enumerate(order)}
-    found = [as_diagnosis({"ranking": {"ranking": r}, "scored_rungs": ["motion"],
-                           "candidates": scored}) for r in (order, swapped)]  # fmt: skip
+    found = [
+        as_diagnosis({"ranking": {"ranking": r}, "scored_rungs": ["motion"], "candidates": scored})
+        for r in (order, swapped)
+    ]
     none = as_diagnosis({"ranking": {"ranking": library}, "scored_rungs": [], "candidates": scored})
     scores = stability_scores([found[0], none, found[1]])
     assert scores["no_gap_diagnoses"] == 1
     assert scores["kendall_tau"] == pytest.approx(ranking_stability([order, swapped]))
-    assert scores["kendall_tau_all"] == pytest.approx(
-        ranking_stability([order, library, swapped])
-    )
+    assert scores["kendall_tau_all"] == pytest.approx(ranking_stability([order, library, swapped]))
     assert scores["kendall_tau_all"] < scores["kendall_tau"]
     alone = stability_scores([found[0], none, none])
     assert "kendall_tau" not in alone and alone["no_gap_diagnoses"] == 2
@@ -149,8 +168,12 @@ def test_a_plan_cycles_singles_through_the_library_and_numbers_seeds_in_order():
     names = ["a", "b", "c"]
     plan = set_plan("single:4,pair:2,open:1", names, 100)
     assert [p[0] for p in plan] == list(range(100, 107))
-    assert [p[1:] for p in plan[:4]] == [("single", "a"), ("single", "b"), ("single", "c"),
-                                         ("single", "a")]  # fmt: skip
+    assert [p[1:] for p in plan[:4]] == [
+        ("single", "a"),
+        ("single", "b"),
+        ("single", "c"),
+        ("single", "a"),
+    ]
     assert plan[4:] == [(104, "pair", None), (105, "pair", None), (106, "open", None)]
     assert set_plan(None, names, 1) is None
     with pytest.raises(ValueError, match="kinds"):
@@ -195,8 +218,12 @@ def test_stability_sets_are_spread_over_the_plan_so_every_kind_is_measured():
 
 
 def test_the_summary_gives_the_ranking_stability_per_kind_of_set():
-    rows = [{"kind": "open", "kendall_tau": 0.7}, {"kind": "open", "kendall_tau": 0.8},
-            {"kind": "single", "kendall_tau": 0.9}, {"kind": "single"}]  # fmt: skip
+    rows = [
+        {"kind": "open", "kendall_tau": 0.7},
+        {"kind": "open", "kendall_tau": 0.8},
+        {"kind": "single", "kendall_tau": 0.9},
+        {"kind": "single"},
+    ]
     summary = summarise(rows)
     assert summary["kendall_tau"] == pytest.approx(0.8) and summary["kendall_tau_n"] == 3
     by_kind = summary["kendall_tau_by_kind"]

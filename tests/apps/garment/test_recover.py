@@ -36,19 +36,26 @@ from simulator.garment.patterns import PatternTopology, build_pattern, default_p
 
 CONFIGS = str(Path(__file__).resolve().parents[3] / "configs")
 TINY = [
-    "recovery.edge_length=0.1", "recovery.swarm_size=2", "recovery.rounds=1",
-    "recovery.sizing_iters=1", "recovery.material_iters=1", "recovery.joint_rounds=1",
-    "recovery.pose_iters=1", "recovery.body_swarm=4", "recovery.body_iters=3",
+    "recovery.edge_length=0.1",
+    "recovery.swarm_size=2",
+    "recovery.rounds=1",
+    "recovery.sizing_iters=1",
+    "recovery.material_iters=1",
+    "recovery.joint_rounds=1",
+    "recovery.pose_iters=1",
+    "recovery.body_swarm=4",
+    "recovery.body_iters=3",
     "recovery.drape_steps=6",
     "recovery.first_drape_steps=12",
-]  # fmt: skip
+]
 
 
 def _tiny_drapes(topology, body, coords, bend, stretch, angles, start, steps=60):
     caps = body.capsules(angles)
     settings = DrapeSettings(max_steps=steps, speed_tol=0.02)
-    batch = GarmentBatch.build(topology, coords, garment_material(bend, stretch), caps, settings,
-                               pos_hint=start)  # fmt: skip
+    batch = GarmentBatch.build(
+        topology, coords, garment_material(bend, stretch), caps, settings, pos_hint=start
+    )
     return drape(batch, start, settings).pos.numpy()
 
 
@@ -76,10 +83,22 @@ def test_swarm_recovers_a_known_skirt_length_from_its_silhouette():
         params = [{**truth, "r2": float(x[0])} for x in xs]
         coords = np.stack([topology.coords(p) for p in params])
         start = np.repeat(target_pos, len(xs), 0)  # warm start, as the recovery does
-        pos = _tiny_drapes(topology, body, coords, [10.0] * len(xs), [1.0] * len(xs),
-                           np.repeat(angles, len(xs), 0), start, steps=30)  # fmt: skip
-        return np.array([target.distance(mesh_mask(camera.project(p)[0], topology.tri_indices,
-                                                    (160, 160))) for p in pos])  # fmt: skip
+        pos = _tiny_drapes(
+            topology,
+            body,
+            coords,
+            [10.0] * len(xs),
+            [1.0] * len(xs),
+            np.repeat(angles, len(xs), 0),
+            start,
+            steps=30,
+        )
+        return np.array(
+            [
+                target.distance(mesh_mask(camera.project(p)[0], topology.tri_indices, (160, 160)))
+                for p in pos
+            ]
+        )
 
     best, _ = _swarm_minimise(objective, [0.3], [0.7], [0.4], size=6, iters=4)
     assert abs(best[0] - 0.55) < 0.04, best
@@ -131,10 +150,14 @@ def _tiny_image(tmp_path: Path, size: int = 128) -> tuple[Path, Path, Path]:
     draped = drape_scene(scene, body, 0.1, DrapeSettings(max_steps=40, speed_tol=0.03))
     caps = body.capsules(scene.pose_angles()[None])[0]
     image, person, masks = render_scene(
-        scene_camera(size), scene_light("midday"), caps,
-        [(r.pos[0].numpy(), p.topology.tri_indices, GARMENT_COLORS[g])
-         for g, (p, r) in draped.items()],
-    )  # fmt: skip
+        scene_camera(size),
+        scene_light("midday"),
+        caps,
+        [
+            (r.pos[0].numpy(), p.topology.tri_indices, GARMENT_COLORS[g])
+            for g, (p, r) in draped.items()
+        ],
+    )
     paths = tmp_path / "in.png", tmp_path / "mask.png", tmp_path / "person.png"
     cv2.imwrite(str(paths[0]), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     cv2.imwrite(str(paths[1]), masks[0].astype(np.uint8) * 255)
@@ -151,8 +174,14 @@ def _compose(*overrides):
 def test_the_command_writes_its_files(tmp_path):
     image, mask, person = _tiny_image(tmp_path)
     out = tmp_path / "out"
-    cfg = _compose(f"image={image}", "garment=skirt", f"mask={mask}", f"person_mask={person}",
-                   f"out_dir={out}", *TINY)  # fmt: skip
+    cfg = _compose(
+        f"image={image}",
+        "garment=skirt",
+        f"mask={mask}",
+        f"person_mask={person}",
+        f"out_dir={out}",
+        *TINY,
+    )
     result = recover_entry.run(cfg)
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted([*recover_entry.OUTPUTS, "garment.obj", "body.obj"])
@@ -183,8 +212,14 @@ def test_same_config_and_seed_write_the_same_bytes(tmp_path):
     outs = []
     for k in range(2):
         out = tmp_path / f"out{k}"
-        cfg = _compose(f"image={image}", "garment=skirt", f"mask={mask}",
-                       f"person_mask={person}", f"out_dir={out}", *TINY)  # fmt: skip
+        cfg = _compose(
+            f"image={image}",
+            "garment=skirt",
+            f"mask={mask}",
+            f"person_mask={person}",
+            f"out_dir={out}",
+            *TINY,
+        )
         recover_entry.run(cfg)
         outs.append(out)
     for name in recover_entry.OUTPUTS:

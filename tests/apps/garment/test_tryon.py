@@ -75,10 +75,18 @@ def test_the_tryon_command_writes_its_files(tmp_path):
     path = _pattern_json(tmp_path)
     out = tmp_path / "out"
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        cfg = compose(config_name="garment_tryon", overrides=[
-            f"pattern={path}", f"out_dir={out}", "edge_length=0.1", "wind.seconds=0.2",
-            "wind.fps=10", "size=64", "pose=c",
-        ])  # fmt: skip
+        cfg = compose(
+            config_name="garment_tryon",
+            overrides=[
+                f"pattern={path}",
+                f"out_dir={out}",
+                "edge_length=0.1",
+                "wind.seconds=0.2",
+                "wind.fps=10",
+                "size=64",
+                "pose=c",
+            ],
+        )
     tryon.run(cfg)
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [*tryon.TRYON_OUTPUTS, "garment.obj", "body.obj"]

@@ -144,11 +144,20 @@ def test_replayed_capsules_follow_the_arm_stroke():
     mesh = scenario.mesh()
     pos = mesh.vert_pos.float().numpy()
     seq = MeshSequence(
-        pos=np.broadcast_to(pos, (1, 11, *pos.shape)).copy(), tri_indices=mesh.tri_indices.numpy(),
-        uv=mesh.uv.float().numpy(), fps=10.0, seeds=[0], labels=[-1], wind_levels=[0],
-        meta={"scene": "arm", "scenario": dataclasses.asdict(scenario),
-              "sim": {"dt": 0.005, "substeps": 20}, "settle_time": scenario.settle_time},
-    )  # fmt: skip
+        pos=np.broadcast_to(pos, (1, 11, *pos.shape)).copy(),
+        tri_indices=mesh.tri_indices.numpy(),
+        uv=mesh.uv.float().numpy(),
+        fps=10.0,
+        seeds=[0],
+        labels=[-1],
+        wind_levels=[0],
+        meta={
+            "scene": "arm",
+            "scenario": dataclasses.asdict(scenario),
+            "sim": {"dt": 0.005, "substeps": 20},
+            "settle_time": scenario.settle_time,
+        },
+    )
     capsules = replay_capsules(seq)
     assert capsules.shape == (1, 11, 2, 7)
     np.testing.assert_allclose(capsules[0, 0, 1, 3:6], [0.28, 0.0, 1.0], atol=1e-5)  # straight
@@ -227,9 +236,11 @@ def test_stroke_profile_is_c1_with_its_analytic_rate(strokes):
     rates = np.array([stroke_profile(p, strokes)[1] for p in phases])
     h = 1e-6
     fd = np.array(
-        [(stroke_profile(p + h, strokes)[0] - stroke_profile(p - h, strokes)[0]) / (2 * h)
-         for p in phases]
-    )  # fmt: skip
+        [
+            (stroke_profile(p + h, strokes)[0] - stroke_profile(p - h, strokes)[0]) / (2 * h)
+            for p in phases
+        ]
+    )
     assert np.abs(fd - rates).max() < 1e-5, "rate is not the derivative of the profile"
     assert np.abs(np.diff(values)).max() < 0.01, "profile jumps"
     assert values.min() == 0.0 and values.max() == 1.0

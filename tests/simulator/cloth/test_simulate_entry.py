@@ -10,14 +10,20 @@ import simulator.cloth.simulate as simulate_entry
 from simulator.sequence import MeshSequence
 
 CONFIGS = str(Path(__file__).resolve().parents[3] / "configs")
-TINY = ["classes=[0,53.0]", "scenario.resolution_level=1", "scenario.settle_time=0.1",
-        "record_time=0.1", "fps=30"]  # fmt: skip
+TINY = [
+    "classes=[0,53.0]",
+    "scenario.resolution_level=1",
+    "scenario.settle_time=0.1",
+    "record_time=0.1",
+    "fps=30",
+]
 
 
 def test_tiny_run_writes_the_sequence_and_a_ply_series(tmp_path):
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        cfg = compose(config_name="simulate",
-                      overrides=[f"paths.output_dir={tmp_path}", "export=ply", *TINY])  # fmt: skip
+        cfg = compose(
+            config_name="simulate", overrides=[f"paths.output_dir={tmp_path}", "export=ply", *TINY]
+        )
     sequence = simulate_entry.run(cfg)
     assert sequence.labels == [0, 53]  # 53.0 is class 53
     saved = MeshSequence.load(tmp_path / "sequence.npz")

@@ -116,9 +116,13 @@ def test_pcg_matches_torch_solution_and_iteration_counts():
     precond = TwoLevelPreconditioner.build(sparse, diag, model.aggregates, free)
     for rtol in (1e-2, 1e-6):
         want, want_iters, _ = conjugate_gradient(
-            lambda v, m=matvec: m(v * free) * free, rhs, precond, rtol=rtol, max_iters=500,
+            lambda v, m=matvec: m(v * free) * free,
+            rhs,
+            precond,
+            rtol=rtol,
+            max_iters=500,
             check_every=1,
-        )  # fmt: skip
+        )
         active = torch.ones(rhs.shape[0], dtype=torch.bool)
         got, iters = solve_two_level(sparse, diag, model.aggregates, free, rhs, active, rtol, 500)
         assert iters.tolist() == want_iters.tolist()

@@ -41,8 +41,7 @@ def test_use_process_threads_sets_torch_and_the_children_env(monkeypatch):
 
 
 @pytest.mark.parametrize(("preset", "expected"), [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
-def test_importing_the_simulator_makes_openmp_threads_sleep_unless_the_user_chose(preset,
-                                                                                   expected):
+def test_importing_the_simulator_makes_openmp_threads_sleep_unless_the_user_chose(preset, expected):
     import subprocess
     import sys
 
@@ -50,8 +49,9 @@ def test_importing_the_simulator_makes_openmp_threads_sleep_unless_the_user_chos
     if preset is not None:
         env["OMP_WAIT_POLICY"] = preset
     code = "import os, simulator; print(os.environ['OMP_WAIT_POLICY'])"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         check=True).stdout  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    ).stdout
     assert out.strip() == expected
 
 

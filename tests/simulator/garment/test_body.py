@@ -24,9 +24,14 @@ from simulator.garment.skinning import (
 )
 
 A_POSE = Pose.from_dict(
-    {"shoulder_r": [0, -60, 0], "shoulder_l": [0, 60, 0], "elbow_r": [0, 0, 20],
-     "hip_r": [-20, 0, 0], "knee_r": [30, 0, 0]}
-)  # fmt: skip
+    {
+        "shoulder_r": [0, -60, 0],
+        "shoulder_l": [0, 60, 0],
+        "elbow_r": [0, 0, 20],
+        "hip_r": [-20, 0, 0],
+        "knee_r": [30, 0, 0],
+    }
+)
 
 
 def test_fifteen_joints_and_rest_transforms_are_identity():
