@@ -437,7 +437,14 @@ def _joint_lines(joint: JointFit | None) -> list[str]:
         f"{shares or 'none'}, unexplained {100 * joint.unexplained:.0f} %. Share: the exact "
         "Shapley value over the factors that matter (they add up to the joint closure); "
         "reset: what returns when the factor alone is set back to nominal. Intervals: 95 % "
-        f"group bootstrap. {joint.sets} sets scored.",
+        f"group bootstrap. {joint.sets} sets scored."
+        + (
+            " Share of each scored rung's divergence S* removes: "
+            + ", ".join(f"{r} {100 * v:.0f} %" for r, v in joint.rung_closure.items())
+            + "."
+            if joint.rung_closure
+            else ""
+        ),
         "",
         markdown_table(_JOINT_HEADER, rows),
         "",

@@ -54,6 +54,7 @@ __all__ = [
     "fit_jointly",
     "nominal_scores",
     "point_closures",
+    "rung_closures",
     "select",
     "strength_intervals",
 ]
@@ -101,6 +102,8 @@ class Value:
     replicates: np.ndarray
     """The closure under each group-bootstrap draw, shape (B,); the same draws for every
     assignment, so differences and Shapley values get intervals too."""
+    rungs: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Scored rung -> its share of the divergence removed (:func:`rung_closures`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -132,6 +135,28 @@ Screen = Callable[[Assignment, Sequence[tuple[str, object]]], list[float]]
 factor at one strength, for each ``(factor, strength)`` in order."""
 
 
+def rung_closures(
+    nominal_oof: dict[str, np.ndarray],
+    set_oof: dict[str, np.ndarray],
+    reference: Reference,
+    weights: np.ndarray | None = None,
+) -> dict[str, object]:
+    """Per scored rung, the share of S's classifier divergence to R that a set removes.
+
+    ``(D(S, R) - D(S_e, R)) / D(S, R)``, clipped to [-1, 1], from the out-of-fold scores of
+    S's and the set's classifiers (``{rung: (repeats, n + m)}``). With ``weights`` (row
+    weights (n + m, B)) one value per bootstrap replicate.
+    """
+    n = len(reference.nominal)
+    out = {}
+    for rung in reference.rungs:
+        before = oof_divergence(nominal_oof[rung], n, weights)
+        after = oof_divergence(set_oof[rung], n, weights)
+        closed = np.clip((before - after) / np.maximum(before, 1e-3), -1.0, 1.0)
+        out[rung] = np.nan_to_num(closed, nan=0.0)
+    return out
+
+
 def divergence_closure(
     nominal_oof: dict[str, np.ndarray],
     set_oof: dict[str, np.ndarray],
@@ -140,21 +165,16 @@ def divergence_closure(
 ):
     """Share of S's classifier divergence to R that a set removes, over the scored rungs.
 
-    Per rung ``(D(S, R) - D(S_e, R)) / D(S, R)`` (clipped to [-1, 1]) from the out-of-fold
-    scores of S's and the set's classifiers (``{rung: (repeats, n + m)}``), weighted by the
-    classifier gap each rung carries (:meth:`ReferenceScores.weights`). The divergence keeps
-    falling with every difference removed where the AUC stays near 1, so several effects at
-    once are resolved one by one. With ``weights`` (row weights (n + m, B)) one value per
-    bootstrap replicate.
+    The :func:`rung_closures` weighted by the classifier gap each rung carries
+    (:meth:`ReferenceScores.weights`). The divergence keeps falling with every difference
+    removed where the AUC stays near 1, so several effects at once are resolved one by one.
+    With ``weights`` one value per bootstrap replicate.
     """
-    n = len(reference.nominal)
     rung_weights = reference.before.weights(reference.gaps, reference.rungs)
+    closed = rung_closures(nominal_oof, set_oof, reference, weights)
     total = 0.0 if weights is None else np.zeros(weights.shape[1])
     for r, rung in enumerate(reference.rungs):
-        before = oof_divergence(nominal_oof[rung], n, weights)
-        after = oof_divergence(set_oof[rung], n, weights)
-        closed = np.clip((before - after) / np.maximum(before, 1e-3), -1.0, 1.0)
-        total = total + rung_weights[r] * np.nan_to_num(closed, nan=0.0)
+        total = total + rung_weights[r] * closed[rung]
     return total
 
 
@@ -224,6 +244,7 @@ def closure_values(
         Value(
             float(divergence_closure(nominal, scores, reference)),
             divergence_closure(nominal, scores, reference, weights),
+            {k: float(v) for k, v in rung_closures(nominal, scores, reference).items()},
         )
         for scores in own
     ]
@@ -388,6 +409,8 @@ class JointFit:
     closure: float
     """Share of the gap S* closes."""
     closure_interval: tuple[float, float]
+    rung_closure: dict[str, float]
+    """Scored rung -> share of its divergence S* removes: where the rest of the gap lies."""
     reset: dict[str, float]
     """Factor -> share of the gap that returns when it alone is reset to nominal in S*."""
     reset_interval: dict[str, tuple[float, float]]
@@ -458,6 +481,7 @@ class JointFit:
             strengths=dict(data["strengths"]),
             strength_interval=pairs(data.get("strength_interval", {})),
             closure=number(data["closure"]),
+            rung_closure={k: number(v) for k, v in data.get("rung_closure", {}).items()},
             closure_interval=(
                 number(data["closure_interval"][0]),
                 number(data["closure_interval"][1]),
@@ -581,6 +605,7 @@ def fit_jointly(
         strength_interval=intervals,
         closure=full.closure,
         closure_interval=_interval(full.replicates),
+        rung_closure=dict(full.rungs),
         reset=reset,
         reset_interval=reset_interval,
         shapley=shapley,

@@ -112,6 +112,7 @@ def test_attribution_sums_to_the_calibrated_closure(scene):
         assert low <= PLANTED[name] <= high
     assert fit.strength_interval["shift"] != (0.5, 2.0)  # the grid's ends are told apart
     assert "switch" not in fit.strength_interval
+    assert fit.rung_closure == {"pixel": pytest.approx(fit.closure)}  # the one scored rung
     shares = fit.stage_shares()
     assert set(shares) == {"physics", "camera", "scene"}
     assert "unexplained" in fit.sentence() and "shift at 1.0" in fit.sentence()

@@ -51,6 +51,7 @@ def _joint(shapley: dict[str, float], stages: dict[str, str]) -> JointFit:
         factors=stages,
         strengths=dict.fromkeys(shapley, 1.0),
         strength_interval={},
+        rung_closure={},
         closure=sum(shapley.values()),
         closure_interval=(0.0, 1.0),
         reset=dict(shapley),
