@@ -944,7 +944,15 @@ def _joint_pool(
         picked = {values[k] for k in _spread(len(values), budget.joint_strengths)} | {best}
         options = tuple(v for v in values if v in picked)
         setting = f"{candidate.registry}.{candidate.field}"
-        pool.append(Factor(candidate.name, candidate.stage, options, setting=setting))
+        pool.append(
+            Factor(
+                candidate.name,
+                candidate.stage,
+                options,
+                setting=setting,
+                simulated=candidate.needs_simulation,
+            )
+        )
     return pool
 
 

@@ -119,6 +119,10 @@ class Factor:
     setting: str = ""
     """What the factor sets (e.g. ``registry.field``); two factors that set one thing are
     never applied together. Empty: the factor's name."""
+    simulated: bool = False
+    """True when the factor re-simulates the cloth (physics, scene): its set's trajectories
+    differ from S's like a fresh draw's, so it must close more than S' does; a re-rendering
+    factor sees S's own meshes and needs no such floor."""
 
     def __post_init__(self):
         if not self.options:
@@ -320,8 +324,8 @@ def select(
     of its strengths on top of the current assignment, measures ``verify`` of them at their
     best screened strengths, the best of each stage first (:func:`_round_robin`), and adds
     the one measured best when it closes at least ``gain`` more of the gap, its
-    group-bootstrap interval of the gain is above 0 and the closure beats ``floor`` (what S'
-    closes by chance). Stops after ``top`` factors or a
+    group-bootstrap interval of the gain is above 0 and, for a factor that re-simulates, the
+    closure beats ``floor`` (what S' closes by chance). Stops after ``top`` factors or a
     step without an addition.
 
     Returns:
@@ -351,7 +355,8 @@ def select(
         k = int(np.argmax([v.closure for v in values]))
         chosen, measured = shortlist[k], values[k]
         low, _ = _interval(measured.replicates - value.replicates)
-        added = measured.closure - value.closure >= gain and low > 0 and measured.closure > floor
+        above = measured.closure > floor or not by_name[chosen].simulated
+        added = measured.closure - value.closure >= gain and low > 0 and above
         path.append(
             {
                 "step": len(current) + 1,

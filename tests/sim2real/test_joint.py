@@ -252,3 +252,26 @@ def test_the_shortlist_spans_the_stages():
     assert _round_robin(estimates, stages, 3) == ["a1", "b1", "c1"]
     assert _round_robin(estimates, stages, 4) == ["a1", "b1", "c1", "a2"]
     assert _round_robin(estimates, stages, 9) == ["a1", "b1", "c1", "a2", "a3"]
+
+
+def test_only_a_factor_that_re_simulates_must_beat_what_a_fresh_draw_closes():
+    worth = {"render": 0.3, "resim": 0.3}
+
+    def evaluate(batch):
+        return [
+            Value(
+                sum(worth[n] for n, _ in a),
+                np.full(9, sum(worth[n] for n, _ in a)) + np.linspace(0, 0.01, 9),
+            )
+            for a in batch
+        ]
+
+    def screen(current, additions):
+        return [sum(worth[n] for n, _ in current) + worth[n] for n, _ in additions]
+
+    for simulated, chosen in ((False, ["render"]), (True, [])):
+        pool = [
+            Factor("render" if not simulated else "resim", "camera", (None,), simulated=simulated)
+        ]
+        found, _, _, _ = select(pool, evaluate, screen, top=2, verify=2, floor=0.4)
+        assert [f.name for f in found] == chosen
