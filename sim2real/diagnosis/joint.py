@@ -325,8 +325,8 @@ def select(
     best screened strengths, the best of each stage first (:func:`_round_robin`), and adds
     the one measured best when it closes at least ``gain`` more of the gap, its
     group-bootstrap interval of the gain is above 0 and, for a factor that re-simulates, the
-    closure beats ``floor`` (what S' closes by chance). Stops after ``top`` factors or a
-    step without an addition.
+    closure beats ``floor`` (what S' closes by chance); the best that qualifies is added.
+    Stops after ``top`` factors or a step without an addition.
 
     Returns:
         The chosen factors (in the order added, each starting at its chosen strength), their
@@ -352,11 +352,10 @@ def select(
         shortlist = _round_robin(best, {f.name: f.stage for f in open_}, verify)
         trials = [assignment({**current, n: best[n][1]}) for n in shortlist]
         values = evaluate(trials)
-        k = int(np.argmax([v.closure for v in values]))
-        chosen, measured = shortlist[k], values[k]
-        low, _ = _interval(measured.replicates - value.replicates)
-        above = measured.closure > floor or not by_name[chosen].simulated
-        added = measured.closure - value.closure >= gain and low > 0 and above
+        ranked = sorted(zip(shortlist, values, strict=True), key=lambda nv: -nv[1].closure)
+        kept = [(n, v) for n, v in ranked if _qualifies(by_name[n], v, value, gain, floor)]
+        chosen, measured = (kept or ranked)[0]
+        added = bool(kept)
         path.append(
             {
                 "step": len(current) + 1,
@@ -371,6 +370,13 @@ def select(
         value = measured
     chosen_factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
     return chosen_factors, assignment(current), value, path
+
+
+def _qualifies(factor: Factor, measured: Value, current: Value, gain: float, floor: float) -> bool:
+    """Whether the current assignment plus ``factor`` (``measured``) is a step of S*."""
+    low, _ = _interval(measured.replicates - current.replicates)
+    above = measured.closure > floor or not factor.simulated
+    return measured.closure - current.closure >= gain and low > 0 and above
 
 
 def _round_robin(

@@ -269,6 +269,11 @@ def test_only_a_factor_that_re_simulates_must_beat_what_a_fresh_draw_closes():
     def screen(current, additions):
         return [sum(worth[n] for n, _ in current) + worth[n] for n, _ in additions]
 
+    both = [Factor("render", "camera", (None,)), Factor("resim", "scene", (None,), simulated=True)]
+    worth["resim"] = 0.35  # measured best, but below the floor: the re-rendering one is added
+    found, _, _, path = select(both, evaluate, screen, top=1, verify=2, floor=0.4)
+    assert [f.name for f in found] == ["render"] and path[0]["added"] == "render"
+    worth["resim"] = 0.3
     for simulated, chosen in ((False, ["render"]), (True, [])):
         pool = [
             Factor("render" if not simulated else "resim", "camera", (None,), simulated=simulated)
