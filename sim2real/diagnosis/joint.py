@@ -323,10 +323,10 @@ def select(
     A step screens every open factor (none that shares a setting with a chosen one) at each
     of its strengths on top of the current assignment, measures ``verify`` of them at their
     best screened strengths, the best of each stage first (:func:`_round_robin`), and adds
-    the one measured best when it closes at least ``gain`` more of the gap, its
+    the best measured one that qualifies: it closes at least ``gain`` more of the gap, its
     group-bootstrap interval of the gain is above 0 and, for a factor that re-simulates, the
-    closure beats ``floor`` (what S' closes by chance); the best that qualifies is added.
-    Stops after ``top`` factors or a step without an addition.
+    closure beats ``floor`` (what S' closes by chance). Stops after ``top`` factors or a step
+    without an addition.
 
     Returns:
         The chosen factors (in the order added, each starting at its chosen strength), their
