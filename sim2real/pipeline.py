@@ -920,26 +920,24 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
     }
 
 
+def _set_closure(nominal_oof: dict, result, j: int, reference: Reference) -> float:
+    """The divergence closure of a scored result's ``j``-th set (its ``j``-th strength)."""
+    own = {r: result.scores_oof[r][j] for r in reference.rungs}
+    return float(divergence_closure(nominal_oof, own, reference))
+
+
 def _joint_pool(
-    plan: list[tuple], results: list, reference: Reference, budget: Budget
+    plan: list[tuple], results: list, reference: Reference, budget: Budget, nominal_oof: dict
 ) -> list[Factor]:
     """Every candidate as a factor the joint fit may choose, with the strengths it tries.
 
     The strengths are up to ``budget.joint_strengths`` of those the candidate was scored at,
     spread over them, plus the one that alone removed most of S's divergence to R.
     """
-    nominal = nominal_scores(reference)
     pool = []
     for (candidate, _), result in zip(plan, results, strict=True):
         values = list(result.strengths)
-        closures = [
-            float(
-                divergence_closure(
-                    nominal, {r: result.scores_oof[r][j] for r in reference.rungs}, reference
-                )
-            )
-            for j in range(len(values))
-        ]
+        closures = [_set_closure(nominal_oof, result, j, reference) for j in range(len(values))]
         best = values[int(np.argmax(closures))]
         picked = {values[k] for k in _spread(len(values), budget.joint_strengths)} | {best}
         options = tuple(v for v in values if v in picked)
@@ -962,7 +960,8 @@ def _joint_fit(
     """The joint selection, calibration and attribution (``None`` without a scored rung).
 
     Additions are screened on S*'s features shifted by each single-candidate set's change
-    (:meth:`LadderFeatures.shifted`); S' sets the floor a first factor must beat.
+    (:meth:`LadderFeatures.shifted`); what S' closes is the floor a factor that re-simulates
+    must beat.
     """
     if budget.joint_top == 0 or not reference.rungs:
         return None
@@ -980,18 +979,10 @@ def _joint_fit(
         estimates = [base.shifted(sets[_label(library[n], v)], nominal) for n, v in additions]
         return point_closures(estimates, reference)
 
-    floor = max(
-        float(
-            divergence_closure(
-                nominal_scores(reference),
-                {r: null.scores_oof[r][0] for r in reference.rungs},
-                reference,
-            )
-        ),
-        0.0,
-    )
+    nominal_oof = nominal_scores(reference)
+    floor = max(_set_closure(nominal_oof, null, 0, reference), 0.0)
     return fit_jointly(
-        _joint_pool(plan, results, reference, budget),
+        _joint_pool(plan, results, reference, budget, nominal_oof),
         evaluate,
         screen=screen,
         top=budget.joint_top,
