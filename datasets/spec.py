@@ -47,6 +47,9 @@ _LATER_VISUAL_FIELDS = (
 :meth:`DatasetSpec.to_json` leaves each group out while it is at its defaults, so those
 datasets (and sets with the earlier ones on) keep their keys."""
 _DEFAULT_VISUAL = VisualEffects()
+_LATER_PHYSICS_FIELDS = (("isotropic_drag", "drag_isotropy"),)
+"""Physical-effect fields added after datasets were made, left out of the JSON likewise."""
+_DEFAULT_PHYSICS = PhysicsEffects()
 
 
 def check_int(name: str, value, low: int = 1) -> int:
@@ -333,8 +336,9 @@ class DatasetSpec:
         datasets made before they existed keep their keys (and resume); :meth:`from_json`
         reads a missing backdrop as ``bank`` and a missing set as ``WANG54``. The
         Newton loop's ``whole_step`` (same arithmetic, one compiled call) appears only when
-        off, and each group of visual-effect fields added later (:data:`_LATER_VISUAL_FIELDS`)
-        only when one of its fields is off its default, for the same reason.
+        off, and each group of effect fields added later (:data:`_LATER_VISUAL_FIELDS`,
+        :data:`_LATER_PHYSICS_FIELDS`) only when one of its fields is off its default, for the
+        same reason.
         """
         out = _jsonable(self) | {"scenario_class": type(self.scenario).__name__}
         if not self.store_passes:
@@ -345,10 +349,14 @@ class DatasetSpec:
             del out["sim"]["newton"]["whole_step"]
         if self.material_set == WANG54:
             del out["material_set"]
-        for group in _LATER_VISUAL_FIELDS:  # absent while all default
-            if all(out["visual"][n] == _jsonable(getattr(_DEFAULT_VISUAL, n)) for n in group):
-                for name in group:
-                    del out["visual"][name]
+        for part, groups, default in (
+            ("visual", _LATER_VISUAL_FIELDS, _DEFAULT_VISUAL),
+            ("physics", _LATER_PHYSICS_FIELDS, _DEFAULT_PHYSICS),
+        ):
+            for group in groups:  # absent while all default
+                if all(out[part][n] == _jsonable(getattr(default, n)) for n in group):
+                    for name in group:
+                        del out[part][name]
         return out
 
     @classmethod

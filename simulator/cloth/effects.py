@@ -45,6 +45,8 @@ class PhysicsEffects:
     """Thin-plate lift perpendicular to the relative air flow (C_l = ``lift_coefficient``)."""
     air_damping: bool = False
     """Isotropic linear drag relative to the air, ``air_damping_coefficient`` kg/(m²·s)."""
+    isotropic_drag: bool = False
+    """A share ``drag_isotropy`` of the wind drag blind to the cloth's orientation."""
     gusty_wind: bool = False
     """Wind varying in space and time (random travelling waves, ``gust_amplitude`` of the mean)."""
     self_collision: bool = False
@@ -59,6 +61,8 @@ class PhysicsEffects:
     lift_coefficient: float = strength(0.5, "aero_lift", 0.1, 1.2)
     """Thin flat plates reach C_l of about 1 before stall."""
     air_damping_coefficient: float = strength(0.05, "air_damping", 0.01, 0.3)
+    drag_isotropy: float = strength(1.0, "isotropic_drag", 0.25, 1.0)
+    """From mostly normal pressure drag to a point-body fluid model's drag (all of it)."""
     gust_amplitude: float = strength(0.4, "gusty_wind", 0.1, 0.8)
     """Fan and outdoor turbulence intensities span roughly 10-80 % of the mean speed."""
     gust_modes: int = 4
@@ -74,12 +78,15 @@ class PhysicsEffects:
         for name in (
             "lift_coefficient",
             "air_damping_coefficient",
+            "drag_isotropy",
             "gust_amplitude",
             "self_collision_radius",
             "internal_damping_beta",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"effects.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.drag_isotropy <= 1:
+            raise ValueError(f"effects.drag_isotropy must be <= 1, got {self.drag_isotropy}")
         if self.gust_modes < 1:
             raise ValueError(f"effects.gust_modes must be >= 1, got {self.gust_modes}")
 

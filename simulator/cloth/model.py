@@ -94,7 +94,8 @@ def build_cloth_model(
     if effects.self_collision:
         energies.append(EnergySelfCollision(radius=effects.self_collision_radius))
     if wind_drag:
-        forces.append(AerodynamicDrag())
+        isotropy = effects.drag_isotropy if effects.isotropic_drag else 0.0
+        forces.append(AerodynamicDrag(isotropy=isotropy))
     if effects.aero_lift:
         forces.append(AerodynamicLift(lift_coefficient=effects.lift_coefficient))
     if effects.air_damping:

@@ -117,6 +117,10 @@ class WindDriver:
         return SimControl(pin_pos=self.pin_pos, wind_vel=wind)
 
 
+WIND_POSES = ("corners", "clips", "edge")
+"""How the wind scene's cloth hangs from its top edge."""
+
+
 @dataclasses.dataclass(frozen=True)
 class ScenarioWind:
     """Cloth hung from its top corners (or whole top edge) in constant-velocity wind."""
@@ -125,8 +129,9 @@ class ScenarioWind:
     size: float = dataclasses.field(default=0.5, metadata={"plausible": (0.3, 0.8)})
     """Side of the square cloth [m]. (``plausible`` metadata: the range of swatch sizes a
     user may have filmed; the sim-to-real diagnosis tries scene fields that carry it.)"""
-    pose: str = dataclasses.field(default="corners", metadata={"choices": ("corners", "edge")})
-    """``corners``: the two top corners pinned; ``edge``: the whole top edge pinned."""
+    pose: str = dataclasses.field(default="corners", metadata={"choices": WIND_POSES})
+    """``corners``: the two top corners pinned; ``clips``: the corners and the middle of the top
+    edge (three clips on a rod); ``edge``: the whole top edge pinned."""
     wind_speeds: tuple[float, ...] = (0.75, 1.5, 2.5)
     """Wind strengths W1 < W2 < W3 [m/s]."""
     wind_yaw_jitter_deg: float = dataclasses.field(
@@ -153,8 +158,8 @@ class ScenarioWind:
         _check_positive("scenario.ramp_time", self.ramp_time)
         if self.settle_time < 0:
             raise ValueError(f"scenario.settle_time must be >= 0, got {self.settle_time}")
-        if self.pose not in ("corners", "edge"):
-            raise ValueError(f"scenario.pose must be 'corners' or 'edge', got {self.pose!r}")
+        if self.pose not in WIND_POSES:
+            raise ValueError(f"scenario.pose must be one of {WIND_POSES}, got {self.pose!r}")
         speeds = tuple(float(s) for s in self.wind_speeds)
         object.__setattr__(self, "wind_speeds", speeds)  # configs pass lists
         if not speeds or any(not s > 0 for s in speeds) or list(speeds) != sorted(speeds):
@@ -167,10 +172,12 @@ class ScenarioWind:
         return _grid_in_plane(n, self.size, origin, (1.0, 0.0, 0.0), (0.0, 0.0, -1.0), dtype)
 
     def pin_indices(self) -> torch.Tensor:
-        """Top corners or top edge (the v = 0 row of the grid)."""
+        """Top corners, three clips or the top edge (of the v = 0 row of the grid)."""
         n = RESOLUTION_LEVELS[self.resolution_level]
         if self.pose == "corners":
             return torch.tensor([0, n - 1])
+        if self.pose == "clips":
+            return torch.tensor([0, (n - 1) // 2, n - 1])
         return torch.arange(n)
 
     def build(

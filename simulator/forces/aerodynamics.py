@@ -7,7 +7,10 @@ triangle's area times its normal) and the air velocity ``w_i`` of the control
 * Drag (normal pressure drag): ``f_i = -1/2 rho C_d |a_i| |u_n| u_n n_i`` with
   ``u_n = u_i . n_i``. It is linearised with the magnitude ``|u_n|`` lagged from the
   start of the step, ``D_i = 1/2 rho C_d |a_i| |u_n| n_i n_i^T``, so it is implicit in
-  the velocity and cannot overshoot.
+  the velocity and cannot overshoot. With ``isotropy`` s > 0 (switch ``isotropic_drag``) a
+  share s of it is blind to the cloth's orientation, ``f_i = -1/2 rho C_d |a_i| |u| u``
+  (the point-body fluid model of engines such as MuJoCo; crumpled fabric and skin friction
+  keep a drag edge-on), ``D_i = 1/2 rho C_d |a_i| ((1 - s) |u_n| n_i n_i^T + s |u| I)``.
 * Lift (switch ``aero_lift``): ``f_i = 1/2 rho C_l |a_i| |u| (u . n_i) l_i``, with ``l_i``
   the unit vector perpendicular to ``u`` in the plane of ``u`` and ``n_i`` (thin
   flat-plate lift), explicit.
@@ -48,19 +51,26 @@ class AerodynamicDrag(Force):
     drag_coefficient: float = 1.0
     air_density: float = 1.2
     """[kg/m³]."""
+    isotropy: float = 0.0
+    """Share of the drag along the relative air velocity whatever the cloth's orientation."""
+
+    def __post_init__(self):
+        if not 0.0 <= self.isotropy <= 1.0:
+            raise ValueError(f"drag isotropy must be in [0, 1], got {self.isotropy!r}")
 
     def linearize(self, model, state, control, energies):
-        """Lagged-magnitude normal drag, implicit in velocity."""
+        """Lagged-magnitude drag, implicit in velocity."""
         area, normal = _area_normals(model, state)
-        u_n = (_relative_velocity(state, control) * normal).sum(-1, keepdim=True)
-        coeff = (
-            0.5
-            * self.air_density
-            * self.drag_coefficient
-            * area
-            * u_n.abs().clamp_min(AERO_MIN_SPEED)
-        )
+        u = _relative_velocity(state, control)
+        u_n = (u * normal).sum(-1, keepdim=True)
+        scale = 0.5 * self.air_density * self.drag_coefficient * area
+        coeff = scale * u_n.abs().clamp_min(AERO_MIN_SPEED)
         damping = coeff[..., None] * normal[..., :, None] * normal[..., None, :]
+        if self.isotropy > 0.0:
+            speed = torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(AERO_MIN_SPEED)
+            eye = torch.eye(3, dtype=u.dtype, device=u.device)
+            isotropic = (scale * speed)[..., None] * eye
+            damping = (1.0 - self.isotropy) * damping + self.isotropy * isotropic
         return StepForce(damping_vertex=damping, v_ref=control.wind_vel)
 
 

@@ -52,7 +52,7 @@ def test_strength_grids_lie_in_the_plausible_range_and_apply_to_the_spec():
     damped = library["physics.air_damping"].apply(SPEC, 0.1)
     assert damped.physics.air_damping_coefficient == 0.1
     assert damped.physics_key() != SPEC.physics_key()
-    assert library["scene.pose"].strengths(3) == ("edge",)
+    assert library["scene.pose"].strengths(3) == ("clips", "edge")
     # a neutral strength inside the range gets points on both sides, near it too
     frame_rate = library["visual.frame_rate"].strengths(3)
     assert frame_rate == pytest.approx([0.5, 0.63, 0.794, 1.26, 1.587, 2.0], rel=1e-3)

@@ -12,7 +12,13 @@ from simulator.cloth.effects import PHYSICS_EFFECT_NAMES, PhysicsEffects
 from simulator.cloth.material import CLASS_COUNT, ClothMaterial, load_wang_material
 from simulator.cloth.model import build_cloth_model
 from simulator.cloth.rollout import SimSettings, replay_capsules, simulate, with_capsules
-from simulator.cloth.scenes import ScenarioArmBend, ScenarioWind, stroke_profile
+from simulator.cloth.scenes import (
+    RESOLUTION_LEVELS,
+    WIND_POSES,
+    ScenarioArmBend,
+    ScenarioWind,
+    stroke_profile,
+)
 from simulator.cloth.sensitivity import bend_test, stretch_test
 from simulator.integrators import IntegratorBackwardEuler, SimulationDiverged
 from simulator.mesh import TriMesh
@@ -221,6 +227,24 @@ def test_divergence_is_reported_with_instance_and_step():
 def test_bad_scenario_values_name_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
         ScenarioWind(**kwargs)
+
+
+def test_wind_poses_pin_corners_clips_or_the_edge():
+    n = RESOLUTION_LEVELS[1]
+    pins = {p: ScenarioWind(resolution_level=1, pose=p).pin_indices().tolist() for p in WIND_POSES}
+    assert pins == {
+        "corners": [0, n - 1],
+        "clips": [0, (n - 1) // 2, n - 1],
+        "edge": list(range(n)),
+    }
+    # The middle clip holds the top edge up: a quarter along it, it sags less than when it
+    # hangs between the two corners alone.
+    sag = {}
+    for pose in ("corners", "clips"):
+        scene = ScenarioWind(resolution_level=1, pose=pose, settle_time=0.3)
+        seq = _run(scene, [20], record_time=0.05)
+        sag[pose] = scene.height - float(seq.pos[0, 0, n // 4, 2])
+    assert 0 <= sag["clips"] < 0.5 * sag["corners"], sag
 
 
 @pytest.mark.parametrize("strokes", [0, -1, 1.5, True])

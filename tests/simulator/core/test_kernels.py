@@ -192,7 +192,9 @@ def test_rollout_with_every_effect_matches_torch(scene):
     assert abs(int(got_cg.sum()) - int(ref_cg.sum())) <= 0.02 * int(ref_cg.sum())
 
 
-WHOLE_STEP_EFFECTS = PhysicsEffects(aero_lift=True, air_damping=True, gusty_wind=True)
+WHOLE_STEP_EFFECTS = PhysicsEffects(
+    aero_lift=True, air_damping=True, gusty_wind=True, isotropic_drag=True, drag_isotropy=0.5
+)
 """Every switch whose terms fold into the per-vertex quadratic of the whole-step kernel."""
 
 
