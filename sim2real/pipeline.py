@@ -9,6 +9,7 @@ is new; the report folder receives complete files only.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import itertools
 import logging
@@ -28,7 +29,6 @@ from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, sw
 from .detectability import candidate_detectability
 from .diagnosis import (
     best_subset_values,
-    candidate_result,
     explains_together,
     fit_strength,
     kernel_closure,
@@ -316,6 +316,47 @@ def run_jobs(jobs: list[SetJob], context: SetContext, n_jobs: int, progress: boo
     }, len(jobs) - len(todo)
 
 
+@dataclasses.dataclass
+class SetBank:
+    """The diagnosis's simulated sets by label, built on demand (read from the cache if there).
+
+    It grows as the diagnosis asks for more sets (refined strengths, coalitions, the joint
+    fit's assignments) and counts what it built and what it found cached.
+    """
+
+    context: SetContext
+    n_jobs: int
+    progress: bool
+    timing: dict
+    sets: dict[str, LadderFeatures] = dataclasses.field(default_factory=dict)
+    jobs: list[SetJob] = dataclasses.field(default_factory=list)
+    cached: int = 0
+
+    def build(self, jobs: list[SetJob]) -> dict[str, LadderFeatures]:
+        """Build (or read) the sets of ``jobs`` not in the bank yet; returns those new sets."""
+        todo = [j for j in jobs if j.label not in self.sets]
+        built, cached = run_jobs(todo, self.context, self.n_jobs, self.progress, self.timing)
+        self.sets.update(built)
+        self.jobs.extend(todo)
+        self.cached += cached
+        return built
+
+    def __getitem__(self, label: str) -> LadderFeatures:
+        return self.sets[label]
+
+    def of(self, candidate: Candidate, values) -> list[LadderFeatures]:
+        """The candidate's sets at ``values``."""
+        return [self.sets[_label(candidate, v)] for v in values]
+
+    def counts(self) -> dict[str, int]:
+        """Sets built, read from the cache, and in all (S counted too)."""
+        return {
+            "built": len(self.jobs) - self.cached,
+            "cached": self.cached,
+            "total": len(self.jobs) + 1,
+        }
+
+
 def _real_digest(real_dir: Path) -> str:
     parts = [file_digest(real_dir / "labels.csv")]
     for path in sorted(real_dir.rglob("*")):
@@ -447,14 +488,13 @@ def run_diagnosis(
 
     # S': the nominal scene under other simulation seeds (the null candidate, and the gap
     # test's second nominal draw).
-    jobs = [null_job(spec)]
-    jobs += _candidate_jobs(spec, plan)
-    sets, cached = run_jobs(jobs, context, n_jobs, progress, timing)
+    bank = SetBank(context, n_jobs, progress, timing)
+    bank.build([null_job(spec), *_candidate_jobs(spec, plan)])
 
     tick = time.perf_counter()
     reference = compare_domains(
         nominal,
-        sets["S'"],
+        bank["S'"],
         real_features,
         n_perm=budget.n_perm,
         n_boot=budget.n_boot,
@@ -463,84 +503,40 @@ def run_diagnosis(
         alpha=alpha,
     )
     detection, location, gaps = reference.detection, reference.location, reference.gaps
-    rungs, before = reference.rungs, reference.before
+    rungs = reference.rungs
     timing["fit"] = time.perf_counter() - tick
 
-    def score(plan):
-        return [
-            candidate_result(
-                c.name,
-                c.stage,
-                values,
-                [sets[_label(c, v)] for v in values],
-                nominal,
-                real_features,
-                gaps,
-                rungs,
-                before,
-                neutral=c.neutral,
-            )
-            for c, values in plan
-        ]
-
-    def build(more_jobs: list[SetJob]) -> None:
-        nonlocal cached
-        more_jobs = [j for j in more_jobs if j.label not in sets]
-        more, more_cached = run_jobs(more_jobs, context, n_jobs, progress, timing)
-        sets.update(more)
-        jobs.extend(more_jobs)
-        cached += more_cached
-
-    def fit(plan):
-        return [
-            fit_strength(
-                result,
-                [sets[_label(c, v)] for v in values],
-                nominal,
-                real_features,
-                gaps,
-                rungs,
-                log_scale=c.log_scale,
-                n_boot=budget.n_boot,
-                rng=np.random.default_rng([seed, 7, i]),
-                before=before,
-            )
-            for i, (result, (c, values)) in enumerate(zip(score(plan), plan, strict=True))
-        ]
-
     tick = time.perf_counter()
-    refined = _refine(plan, score(plan), budget.refine)
+    refined = _refine(plan, _score_plan(plan, bank, reference), budget.refine)
     timing["fit"] += time.perf_counter() - tick
-    build(_candidate_jobs(spec, refined))
+    bank.build(_candidate_jobs(spec, refined))
     plan = refined
     tick = time.perf_counter()
-    results = fit(plan)
+    results = _fit_plan(plan, bank, reference, n_boot=budget.n_boot, seed=seed)
     timing["fit"] += time.perf_counter() - tick
     for _ in range(FIT_CHECKS):  # measure each top candidate at its fitted strength, refit
         checked = _check_fits(plan, results, budget.refine)
         if checked == plan:
             break
-        build(_candidate_jobs(spec, checked))
+        bank.build(_candidate_jobs(spec, checked))
         plan = checked
         tick = time.perf_counter()
-        results = fit(plan)
+        results = _fit_plan(plan, bank, reference, n_boot=budget.n_boot, seed=seed)
         timing["fit"] += time.perf_counter() - tick
     tick = time.perf_counter()
-    null = candidate_result(
-        "S'", "null", (None,), [sets["S'"]], nominal, real_features, gaps, rungs, before
-    )
+    null = reference.score("S'", "null", (None,), [bank["S'"]])
     ranking = rank_candidates(results, null, kernel_rungs(gaps, rungs))
-    residual = _residual_gap(ranking, plan, results, sets, real_features, budget, alpha, seed)
+    residual = _residual_gap(ranking, plan, results, bank, real_features, budget, alpha, seed)
     probes = probe_transfer(nominal, real_features)
     timing["fit"] += time.perf_counter() - tick
     tick = time.perf_counter()
     detectability = candidate_detectability(
-        plan, sets, nominal, sets["S'"], _label, alpha=alpha, n_perm=budget.n_perm, seed=seed
+        plan, bank.sets, nominal, bank["S'"], _label, alpha=alpha, n_perm=budget.n_perm, seed=seed
     )
     timing["detectability"] = time.perf_counter() - tick
     coalitions = _coalition_plan(plan, results, budget.shapley_top)
-    build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
-    shapley = _shapley(coalitions, results, sets, nominal, real_features, gaps, rungs, before)
+    bank.build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
+    shapley = _shapley(coalitions, results, bank, reference)
     ranking = explained_together(ranking, shapley, {r.name: r.best_score for r in results})
     ranking, stacked = _stack_on_leader(
         ranking,
@@ -548,58 +544,23 @@ def run_diagnosis(
         results,
         spec,
         budget,
-        build=lambda specs: build([SetJob(label, s) for label, s in specs.items()]),
-        score=lambda name, stage, values, labels: candidate_result(
-            name,
-            stage,
-            values,
-            [sets[label] for label in labels],
-            nominal,
-            real_features,
-            gaps,
-            rungs,
-            before,
+        build=lambda specs: bank.build([SetJob(label, s) for label, s in specs.items()]),
+        score=lambda name, stage, values, labels: reference.score(
+            name, stage, values, [bank[label] for label in labels]
         ),
     )
     tick = time.perf_counter()
     joint = _joint_fit(
-        plan,
-        results,
-        null,
-        spec,
-        library,
-        budget,
-        build=build,
-        sets=sets,
-        reference=reference,
-        value_of=lambda built: closure_values(built, reference, n_boot=budget.n_boot, seed=seed),
+        plan, results, null, spec, library, budget, bank=bank, reference=reference, seed=seed
     )
     timing["joint"] = time.perf_counter() - tick
-    swaps, built, built_cached = _stage_swaps(
-        spec,
-        library,
-        plan,
-        sets,
-        nominal,
-        real,
-        real_features,
-        gaps,
-        context,
-        net,
-        budget=budget,
-        n_jobs=n_jobs,
-        progress=progress,
-        timing=timing,
-        seed=seed,
-    )
-    jobs += built
-    cached += built_cached
+    swaps = _stage_swaps(spec, library, plan, bank, reference, real, net, budget=budget, seed=seed)
     timing["total"] = time.perf_counter() - start
 
     name = name or f"{real_dir.name}-{Path(run).name}"
-
-    def kernel(r):  # as the ranking measures the top candidate's
-        return kernel_closure(r, ranking["kernel_rungs"], threshold=ranking["threshold"])
+    kernel = functools.partial(  # as the ranking measures the top candidate's
+        kernel_closure, rungs=ranking["kernel_rungs"], threshold=ranking["threshold"]
+    )
 
     result = {
         "name": name,
@@ -631,8 +592,8 @@ def run_diagnosis(
         "detection_rungs": {n: g.to_json() for n, g in detection.items()},
         "location": location,
         "scored_rungs": rungs,
-        "reference_auc": before.auc,
-        "reference_classifier": before.to_json(),
+        "reference_auc": reference.before.auc,
+        "reference_classifier": reference.before.to_json(),
         "candidates": {
             r.name: {**r.to_json(), "best": r.best, "kernel_closure": kernel(r)} for r in results
         },
@@ -648,7 +609,7 @@ def run_diagnosis(
         ),
         "detectability": detectability,
         "probes": probes,
-        "sets": {"built": len(jobs) - cached, "cached": cached, "total": len(jobs) + 1},
+        "sets": bank.counts(),
         "timing": timing,
     }
     diagnosis = Diagnosis.from_json(json_safe(result))
@@ -661,44 +622,27 @@ def run_diagnosis(
 
 
 def _stage_swaps(
-    spec,
-    library,
-    plan,
-    sets,
-    nominal,
-    real,
-    real_features,
-    gaps,
-    context,
-    net,
-    *,
-    budget,
-    n_jobs,
-    progress,
-    timing,
-    seed,
-) -> tuple[dict, list[SetJob], int]:
+    spec, library, plan, bank: SetBank, reference: Reference, real: ClipSet, net, *, budget, seed
+) -> dict:
     """Counterfactuals (b) camera statistics of R emulated on S and (c) AdaBN on R.
 
     Camera effects missing from the candidate plan are built here (re-renders only).
-    Returns the result entry, the sets it needed beyond the candidates' and how many of
-    those came from the cache.
     """
+    timing = bank.timing
     tick = time.perf_counter()
+    nominal, real_features, gaps = reference.nominal, reference.real, reference.gaps
     planned = {c.name: values for c, values in plan}
     camera = [
         (c, planned.get(c.name) or c.strengths(budget.strengths))
         for c in library.values()
         if c.stage == "camera" and not c.binary and not c.choices
     ]
-    built = [j for j in _candidate_jobs(spec, camera) if j.label not in sets]
-    more, cached = run_jobs(built, context, n_jobs, progress, timing)
-    sets.update(more)
+    bank.build(_candidate_jobs(spec, camera))
     rng = np.random.default_rng([seed, 11])
-    rivals = {c.name: [sets[_label(c, v)] for v in values] for c, values in plan}
+    rivals = {c.name: bank.of(c, values) for c, values in plan}
     signatures = camera_signatures(
         nominal,
-        {c.name: (values, [sets[_label(c, v)] for v in values], c.neutral) for c, values in camera},
+        {c.name: (values, bank.of(c, values), c.neutral) for c, values in camera},
         rivals,
         rng=rng,
     )
@@ -711,21 +655,18 @@ def _stage_swaps(
         swapped = spec
         for candidate, value in members:
             swapped = candidate.apply(swapped, value)
-        job = SetJob(label, swapped)
-        more, hit = run_jobs([job], context, n_jobs, progress, timing)
-        built.append(job)
-        cached += hit
+        bank.build([SetJob(label, swapped)])
         camera_entry["set"] = label
         camera_entry["rungs"] = swap_closure(
-            nominal, real_features, gaps, sim_after=more[label], rng=rng
+            nominal, real_features, gaps, sim_after=bank[label], rng=rng
         )
-    adapted_features = _adapted_real(real, real_features, context, net)
+    adapted_features = _adapted_real(real, real_features, bank.context, net)
     entry = {
         "camera": camera_entry,
         "batchnorm": batchnorm_swap(nominal, real_features, adapted_features, gaps, rng=rng),
     }
     timing["counterfactuals"] = time.perf_counter() - tick
-    return entry, built, cached
+    return entry
 
 
 def _adapted_real(real, real_features: LadderFeatures, context: SetContext, net):
@@ -755,7 +696,7 @@ def _real_digest_of(real) -> str:
     return digest.hexdigest()[:20]
 
 
-def _residual_gap(ranking, plan, results, sets, real, budget, alpha, seed) -> dict | None:
+def _residual_gap(ranking, plan, results, bank: SetBank, real, budget, alpha, seed) -> dict | None:
     """The gap tests of :func:`localise` between R and the top candidate's best set.
 
     A cause that is really the missing effect leaves no significant gap behind at its
@@ -767,7 +708,7 @@ def _residual_gap(ranking, plan, results, sets, real, budget, alpha, seed) -> di
     i = next(i for i, r in enumerate(results) if r.name == top)
     strength = results[i].best_strength
     after = rung_gaps(
-        sets[_label(plan[i][0], strength)],
+        bank[_label(plan[i][0], strength)],
         real,
         n_perm=budget.n_perm,
         n_boot=budget.n_boot,
@@ -889,7 +830,7 @@ def _coalition_plan(plan: list[tuple], results: list, top: int) -> dict:
     return out
 
 
-def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> dict | None:
+def _shapley(coalitions, results, bank: SetBank, reference: Reference) -> dict | None:
     """Shapley values of the top candidates from the coalition sets (``None``: < 2 players).
 
     Also each coalition's kernel closure (:func:`sim2real.diagnosis.kernel_closure`), which
@@ -899,15 +840,13 @@ def _shapley(coalitions, results, sets, nominal, real, gaps, rungs, before) -> d
         return None
     by_name = {r.name: r for r in results}
     players = sorted({n for label in coalitions for n in label.split(":", 1)[1].split("+")})
-    on = kernel_rungs(gaps, rungs)
+    on = kernel_rungs(reference.gaps, reference.rungs)
     value = {frozenset(): 0.0}
     value.update({frozenset([n]): by_name[n].best_score for n in players})
     kernel = {}
     for label in coalitions:
         names = label.split(":", 1)[1].split("+")
-        scored = candidate_result(
-            label, "coalition", (None,), [sets[label]], nominal, real, gaps, rungs, before
-        )
+        scored = reference.score(label, "coalition", (None,), [bank[label]])
         value[frozenset(names)] = scored.best_score
         kernel["+".join(sorted(names))] = kernel_closure(scored, on)
     closure = best_subset_values(value)
@@ -955,7 +894,7 @@ def _joint_pool(
 
 
 def _joint_fit(
-    plan, results, null, spec, library, budget: Budget, *, build, sets, reference, value_of
+    plan, results, null, spec, library, budget: Budget, *, bank: SetBank, reference, seed: int
 ):
     """The joint selection, calibration and attribution (``None`` without a scored rung).
 
@@ -968,15 +907,16 @@ def _joint_fit(
     nominal = reference.nominal
 
     def features_of(chosen: Assignment) -> LadderFeatures:
-        return sets[assignment_job(spec, library, chosen).label] if chosen else nominal
+        return bank[assignment_job(spec, library, chosen).label] if chosen else nominal
 
     def evaluate(batch: list[Assignment]) -> list:
-        build([assignment_job(spec, library, chosen) for chosen in batch if chosen])
-        return value_of([features_of(chosen) for chosen in batch])
+        bank.build([assignment_job(spec, library, chosen) for chosen in batch if chosen])
+        built = [features_of(chosen) for chosen in batch]
+        return closure_values(built, reference, n_boot=budget.n_boot, seed=seed)
 
     def screen(current: Assignment, additions) -> list[float]:
         base = features_of(current)
-        estimates = [base.shifted(sets[_label(library[n], v)], nominal) for n, v in additions]
+        estimates = [base.shifted(bank[_label(library[n], v)], nominal) for n, v in additions]
         return point_closures(estimates, reference)
 
     nominal_oof = nominal_scores(reference)
@@ -990,6 +930,37 @@ def _joint_fit(
         floor=floor,
         rounds=budget.joint_rounds,
     )
+
+
+def _score_plan(plan: list[tuple], bank: SetBank, reference: Reference) -> list:
+    """Each planned candidate's sets scored against R (:meth:`Reference.score`)."""
+    return [
+        reference.score(c.name, c.stage, values, bank.of(c, values), neutral=c.neutral)
+        for c, values in plan
+    ]
+
+
+def _fit_plan(
+    plan: list[tuple], bank: SetBank, reference: Reference, *, n_boot: int, seed: int
+) -> list:
+    """Each planned candidate scored, with its strength fitted and the fit's interval."""
+    return [
+        fit_strength(
+            result,
+            bank.of(c, values),
+            reference.nominal,
+            reference.real,
+            reference.gaps,
+            reference.rungs,
+            log_scale=c.log_scale,
+            n_boot=n_boot,
+            rng=np.random.default_rng([seed, 7, i]),
+            before=reference.before,
+        )
+        for i, (result, (c, values)) in enumerate(
+            zip(_score_plan(plan, bank, reference), plan, strict=True)
+        )
+    ]
 
 
 def _label(candidate: Candidate, value) -> str:

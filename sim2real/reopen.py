@@ -22,7 +22,7 @@ from datasets.spec import DatasetSpec
 from .candidates import Candidate, candidate_library
 from .diagnosis.joint import Assignment, Value, closure_values
 from .diagnosis.reference import Reference, compare_domains
-from .diagnosis.scoring import candidate_result, oof_auc, oof_divergence
+from .diagnosis.scoring import oof_auc, oof_divergence
 from .domains import real_clips
 from .ladder import LadderFeatures, file_digest
 from .pipeline import (
@@ -77,17 +77,7 @@ class Reopened:
         """Per assignment and scored rung: the domain classifier's AUC and divergence to R."""
         sets = self.features(batch, n_jobs=n_jobs)
         ref = self.reference
-        scored = candidate_result(
-            "any",
-            "any",
-            (None,) * len(sets),
-            sets,
-            ref.nominal,
-            ref.real,
-            ref.gaps,
-            ref.rungs,
-            ref.before,
-        )
+        scored = ref.score("any", "any", (None,) * len(sets), sets)
         return [
             {
                 rung: {

@@ -35,7 +35,7 @@ from ..ladder import LadderFeatures
 from ..stats import CI_LEVEL, bootstrap_draws
 from .coalitions import shapley_values
 from .reference import Reference
-from .scoring import candidate_result, oof_divergence
+from .scoring import oof_divergence
 
 __all__ = [
     "JOINT_TOLERANCE",
@@ -184,17 +184,7 @@ def divergence_closure(
 
 def nominal_scores(reference: Reference) -> dict[str, np.ndarray]:
     """S's own out-of-fold scores against R per scored rung, as every set's are measured."""
-    scored = candidate_result(
-        "S",
-        "null",
-        (None,),
-        [reference.nominal],
-        reference.nominal,
-        reference.real,
-        reference.gaps,
-        reference.rungs,
-        reference.before,
-    )
+    scored = reference.score("S", "null", (None,), [reference.nominal])
     return {rung: scored.scores_oof[rung][0] for rung in reference.rungs}
 
 
@@ -204,17 +194,7 @@ def _set_scores(sets: Sequence[LadderFeatures], reference: Reference):
     for features in sets:
         if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
             raise ValueError("closure_values: every set must hold S's simulations, in S's order")
-    scored = candidate_result(
-        "joint",
-        "joint",
-        (None,) * (len(sets) + 1),
-        [sim, *sets],
-        sim,
-        reference.real,
-        reference.gaps,
-        reference.rungs,
-        reference.before,
-    )
+    scored = reference.score("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets])
     nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
     own = [{rung: oof[i + 1] for rung, oof in scored.scores_oof.items()} for i in range(len(sets))]
     return nominal, own

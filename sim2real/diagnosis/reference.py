@@ -7,7 +7,7 @@ import dataclasses
 from ..ladder import LadderFeatures
 from ..stats import Gap
 from .localise import localise, rung_gaps
-from .scoring import ReferenceScores, score_reference
+from .scoring import CandidateResult, ReferenceScores, candidate_result, score_reference
 
 __all__ = ["Reference", "compare_domains"]
 
@@ -32,6 +32,29 @@ class Reference:
     """The scored rungs."""
     before: ReferenceScores
     """S's domain classifier against R on the scored rungs."""
+
+    def score(
+        self,
+        name: str,
+        stage: str,
+        strengths: tuple,
+        sets: list[LadderFeatures],
+        *,
+        neutral: float | None = None,
+    ) -> CandidateResult:
+        """Sets of S's size and seeds (one per strength) scored against R, as candidates are."""
+        return candidate_result(
+            name,
+            stage,
+            strengths,
+            sets,
+            self.nominal,
+            self.real,
+            self.gaps,
+            self.rungs,
+            self.before,
+            neutral=neutral,
+        )
 
 
 def compare_domains(
