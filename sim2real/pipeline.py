@@ -28,6 +28,7 @@ from .candidates import Candidate, candidate_library, select_candidates
 from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
 from .detectability import candidate_detectability
 from .diagnosis import (
+    Ranking,
     best_subset_values,
     explains_together,
     fit_strength,
@@ -559,7 +560,7 @@ def run_diagnosis(
 
     name = name or f"{real_dir.name}-{Path(run).name}"
     kernel = functools.partial(  # as the ranking measures the top candidate's
-        kernel_closure, rungs=ranking["kernel_rungs"], threshold=ranking["threshold"]
+        kernel_closure, rungs=ranking.kernel_rungs, threshold=ranking.threshold
     )
 
     result = {
@@ -598,14 +599,14 @@ def run_diagnosis(
             r.name: {**r.to_json(), "best": r.best, "kernel_closure": kernel(r)} for r in results
         },
         "null": {**null.to_json(), "kernel_closure": kernel(null)},
-        "ranking": ranking,
+        "ranking": ranking.to_json(),
         "residual": residual,
         "shapley": shapley,
         "stacked": stacked,
         "joint": None if joint is None else joint.to_json(),
         "counterfactuals": swaps,
         "residual_stage": stage_of_residual(
-            location, ranking["stage_scores"], {n: g.corrected_auc for n, g in gaps.items()}
+            location, ranking.stage_scores, {n: g.corrected_auc for n, g in gaps.items()}
         ),
         "detectability": detectability,
         "probes": probes,
@@ -702,7 +703,7 @@ def _residual_gap(ranking, plan, results, bank: SetBank, real, budget, alpha, se
     A cause that is really the missing effect leaves no significant gap behind at its
     fitted strength; a look-alike that closes part of the gap usually does.
     """
-    top = ranking["top"]
+    top = ranking.top
     if top is None:
         return None
     i = next(i for i, r in enumerate(results) if r.name == top)
@@ -726,7 +727,7 @@ def _residual_gap(ranking, plan, results, bank: SetBank, real, budget, alpha, se
     }
 
 
-def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, float]) -> dict:
+def explained_together(ranking: Ranking, shapley: dict | None, alone: dict[str, float]) -> Ranking:
     """The ranking, explained by the top candidate's best coalition when it alone is not.
 
     Two effects at once (a sealed pair, a real camera with two faults) each close only part
@@ -741,12 +742,7 @@ def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, flo
     are all fitted and it is the best of several coalitions, so it closes more by chance
     (decision record: docs/design/sim2real-coalitions.md).
     """
-    if (
-        ranking["explained"]
-        or not shapley
-        or ranking["top"] is None
-        or ranking.get("neutral_in_interval")
-    ):
+    if ranking.explained or not shapley or ranking.top is None or ranking.neutral_in_interval:
         return ranking
     measured = {frozenset([n]): v for n, v in alone.items()}
     measured.update({frozenset(k.split("+")): v for k, v in shapley["coalitions"].items()})
@@ -757,25 +753,25 @@ def explained_together(ranking: dict, shapley: dict | None, alone: dict[str, flo
     holding = {
         k: v
         for k, v in shapley["coalitions"].items()
-        if ranking["top"] in k.split("+")
+        if ranking.top in k.split("+")
         and explains_together(
-            v, shapley["kernel_closure"][k], ranking["threshold"], without(frozenset(k.split("+")))
+            v, shapley["kernel_closure"][k], ranking.threshold, without(frozenset(k.split("+")))
         )
     }
     if not holding:
         return ranking
     best = max(holding, key=holding.get)
-    return {
-        **ranking,
-        "explained": True,
-        "look_alike": False,
-        "explained_by": best.split("+"),
-        "explained_by_score": holding[best],
-        "explained_by_kernel_closure": shapley["kernel_closure"][best],
-    }
+    return dataclasses.replace(
+        ranking,
+        explained=True,
+        look_alike=False,
+        explained_by=best.split("+"),
+        explained_by_score=holding[best],
+        explained_by_kernel_closure=shapley["kernel_closure"][best],
+    )
 
 
-def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score):
+def _stack_on_leader(ranking: Ranking, plan, results, spec, budget, *, build, score):
     """The ranking, explained by a partner fitted on top of the leader when it alone is not.
 
     Runs :func:`sim2real.stacking.stacked_fit` when nothing explains the gap yet and the
@@ -783,8 +779,8 @@ def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score
     candidates that re-render, each over its budget grid. Returns (ranking, the fit or
     ``None``).
     """
-    top = ranking["top"]
-    if ranking["explained"] or top is None or ranking.get("neutral_in_interval"):
+    top = ranking.top
+    if ranking.explained or top is None or ranking.neutral_in_interval:
         return ranking, None
     i = next(i for i, r in enumerate(results) if r.name == top)
     if results[i].best_score < STACK_MIN_LEADER:
@@ -802,8 +798,8 @@ def _stack_on_leader(ranking: dict, plan, results, spec, budget, *, build, score
         partners,
         build,
         score,
-        kernel=lambda r: kernel_closure(r, ranking["kernel_rungs"]),
-        threshold=ranking["threshold"],
+        kernel=lambda r: kernel_closure(r, ranking.kernel_rungs),
+        threshold=ranking.threshold,
     )
     return (explained_by_stack(ranking, fit) if fit["explained"] else ranking), fit
 

@@ -19,52 +19,14 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from .diagnosis.joint import JointFit
+from .diagnosis.ranking import Ranking
+from .section import Section, fields_of, split_known
 
 __all__ = ["Diagnosis", "DiagnosisInputs", "Location", "Ranking"]
 
 
-def _fields(cls) -> list[str]:
-    return [f.name for f in dataclasses.fields(cls) if f.name != "extra"]
-
-
-def _split(cls, data: Mapping[str, Any], what: str) -> tuple[dict, dict]:
-    """``data`` as the constructor's known fields and the rest."""
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{what} must be a mapping, got {type(data).__name__}")
-    names = set(_fields(cls))
-    known = {k: v for k, v in data.items() if k in names}
-    missing = [
-        f.name
-        for f in dataclasses.fields(cls)
-        if f.name in names
-        and f.name not in known
-        and f.default is dataclasses.MISSING
-        and f.default_factory is dataclasses.MISSING
-    ]
-    if missing:
-        raise ValueError(f"{what} lacks {missing[0]!r}")
-    return known, {k: v for k, v in data.items() if k not in names}
-
-
-class _Section:
-    """A section of a report: its known keys as typed fields, the rest kept in ``extra``."""
-
-    section: ClassVar[str]
-    extra: dict
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]):
-        """Read this section of a report."""
-        known, extra = _split(cls, data, cls.section)
-        return cls(**known, extra=extra)
-
-    def to_json(self) -> dict:
-        """This section of a report."""
-        return {**self.extra, **{k: getattr(self, k) for k in _fields(type(self))}}
-
-
 @dataclasses.dataclass(frozen=True)
-class Location(_Section):
+class Location(Section):
     """Is there a gap, and on which rungs (:func:`sim2real.diagnosis.localise`)."""
 
     alpha: float
@@ -87,69 +49,8 @@ class Location(_Section):
     section: ClassVar[str] = "location"
 
 
-_EXPLAINED_BY = ("explained_by", "explained_by_score", "explained_by_kernel_closure")
-
-
 @dataclasses.dataclass(frozen=True)
-class Ranking(_Section):
-    """The candidates in order and whether the top one is named the cause.
-
-    Made by :func:`sim2real.diagnosis.rank_candidates`; a coalition or a stacked pair that
-    explains the gap with the top candidate sets ``explained_by``.
-    """
-
-    ranking: list[str]
-    """Candidate names, best first."""
-    threshold: float
-    """The least classifier closure that names a cause: max(0.6, S' + 0.15)."""
-    null_score: float
-    """The closure of a fresh nominal draw S' (chance)."""
-    explained: bool
-    """Whether a cause is named (the top candidate, or ``explained_by``)."""
-    top: str | None
-    """The best candidate."""
-    kernel_rungs: list[str]
-    """The scored rungs with a kernel gap: where the kernel check measures."""
-    kernel_closure: float | None
-    """The top candidate's kernel closure at the strength that confirms it."""
-    kernel_strength: Any
-    """That strength."""
-    kernel_threshold: float
-    """The least kernel closure that confirms a cause."""
-    look_alike: bool
-    """The top candidate closes the classifier gap but not the kernel distance."""
-    neutral_in_interval: bool
-    """The top candidate's interval holds its neutral strength (not named)."""
-    confusable_with_top: list[str]
-    """Candidates within 0.1 of the top."""
-    stage_scores: dict[str, float | None]
-    """The best closure of each stage's candidates."""
-    explained_by: list[str] | None = None
-    """The candidates that explain the gap together (a coalition or a stacked pair)."""
-    explained_by_score: float | None = None
-    """Their joint closure."""
-    explained_by_kernel_closure: float | None = None
-    """Their joint kernel closure."""
-    replayed: bool | None = None
-    """Set by a rescoring: whether every step could be decided again from stored closures."""
-    extra: dict = dataclasses.field(default_factory=dict)
-    section: ClassVar[str] = "ranking"
-
-    def to_json(self) -> dict:
-        """The ``ranking`` section of a report (optional keys only where set)."""
-        out = {**self.extra}
-        for name in _fields(type(self)):
-            value = getattr(self, name)
-            if name in _EXPLAINED_BY and self.explained_by is None:
-                continue
-            if name == "replayed" and value is None:
-                continue
-            out[name] = value
-        return out
-
-
-@dataclasses.dataclass(frozen=True)
-class DiagnosisInputs(_Section):
+class DiagnosisInputs(Section):
     """What a diagnosis was run on, and how: enough to rebuild any of its sets."""
 
     real_dir: str
@@ -240,7 +141,7 @@ class Diagnosis:
         Raises:
             ValueError: naming the first missing or malformed section.
         """
-        known, extra = _split(cls, data, "report")
+        known, extra = split_known(cls, data, "report")
         for name, kind in _TYPED.items():
             known[name] = kind.from_json(known[name])
         if known.get("joint") is not None:
@@ -250,7 +151,7 @@ class Diagnosis:
     def to_json(self) -> dict:
         """What ``report.json`` holds (before ``json_safe``)."""
         out = {**self.extra}
-        for name in _fields(type(self)):
+        for name in fields_of(type(self)):
             value = getattr(self, name)
             if name in ("shrink", "joint") and value is None:
                 continue

@@ -18,10 +18,11 @@ The functions here are pure: the caller builds the sets (``build``) and scores t
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 from .candidates import Candidate
-from .diagnosis import CandidateResult, explains_together
+from .diagnosis import CandidateResult, Ranking, explains_together
 
 __all__ = ["STACK_MIN_LEADER", "explained_by_stack", "stack_label", "stacked_fit"]
 
@@ -128,13 +129,13 @@ def stacked_fit(
     return out
 
 
-def explained_by_stack(ranking: dict, fit: dict) -> dict:
+def explained_by_stack(ranking: Ranking, fit: dict) -> Ranking:
     """``ranking`` with its gap explained by a stacked ``fit``'s pair (the leader named first)."""
-    return {
-        **ranking,
-        "explained": True,
-        "look_alike": False,
-        "explained_by": [ranking["top"], fit["best"]],
-        "explained_by_score": fit["score"],
-        "explained_by_kernel_closure": fit["kernel_closure"],
-    }
+    return dataclasses.replace(
+        ranking,
+        explained=True,
+        look_alike=False,
+        explained_by=[ranking.top, fit["best"]],
+        explained_by_score=fit["score"],
+        explained_by_kernel_closure=fit["kernel_closure"],
+    )

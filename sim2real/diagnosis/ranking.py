@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ..candidates import STAGES
+from ..section import Section, fields_of
 from ..stats import Gap
 from .scoring import CONFUSABLE_WITHIN, CandidateResult, _mmd2_floor
 
@@ -16,6 +19,7 @@ __all__ = [
     "OPEN_SET_MARGIN",
     "OPEN_SET_MIN_CLOSURE",
     "SATURATED_TIE",
+    "Ranking",
     "agrees",
     "explains_together",
     "kernel_closure",
@@ -127,13 +131,74 @@ def explains_together(
     )
 
 
+_EXPLAINED_BY = ("explained_by", "explained_by_score", "explained_by_kernel_closure")
+
+
+@dataclasses.dataclass(frozen=True)
+class Ranking(Section):
+    """The candidates in order and whether the top one is named the cause.
+
+    Made by :func:`sim2real.diagnosis.rank_candidates`; a coalition or a stacked pair that
+    explains the gap with the top candidate sets ``explained_by``.
+    """
+
+    ranking: list[str]
+    """Candidate names, best first."""
+    threshold: float
+    """The least classifier closure that names a cause: max(0.6, S' + 0.15)."""
+    null_score: float
+    """The closure of a fresh nominal draw S' (chance)."""
+    explained: bool
+    """Whether a cause is named (the top candidate, or ``explained_by``)."""
+    top: str | None
+    """The best candidate."""
+    kernel_rungs: list[str]
+    """The scored rungs with a kernel gap: where the kernel check measures."""
+    kernel_closure: float | None
+    """The top candidate's kernel closure at the strength that confirms it."""
+    kernel_strength: Any
+    """That strength."""
+    kernel_threshold: float
+    """The least kernel closure that confirms a cause."""
+    look_alike: bool
+    """The top candidate closes the classifier gap but not the kernel distance."""
+    neutral_in_interval: bool
+    """The top candidate's interval holds its neutral strength (not named)."""
+    confusable_with_top: list[str]
+    """Candidates within 0.1 of the top."""
+    stage_scores: dict[str, float | None]
+    """The best closure of each stage's candidates."""
+    explained_by: list[str] | None = None
+    """The candidates that explain the gap together (a coalition or a stacked pair)."""
+    explained_by_score: float | None = None
+    """Their joint closure."""
+    explained_by_kernel_closure: float | None = None
+    """Their joint kernel closure."""
+    replayed: bool | None = None
+    """Set by a rescoring: whether every step could be decided again from stored closures."""
+    extra: dict = dataclasses.field(default_factory=dict)
+    section: ClassVar[str] = "ranking"
+
+    def to_json(self) -> dict:
+        """The ``ranking`` section of a report (optional keys only where set)."""
+        out = {**self.extra}
+        for name in fields_of(type(self)):
+            value = getattr(self, name)
+            if name in _EXPLAINED_BY and self.explained_by is None:
+                continue
+            if name == "replayed" and value is None:
+                continue
+            out[name] = value
+        return out
+
+
 def rank_candidates(
     results: list[CandidateResult],
     null: CandidateResult | None,
     on: list[str],
     *,
     min_closure: float = OPEN_SET_MIN_CLOSURE,
-) -> dict:
+) -> Ranking:
     """Ranking, open-set decision, stage verdict and confusable pairs.
 
     The top candidate is named the cause (``explained``) when its classifier closure reaches
@@ -164,21 +229,21 @@ def rank_candidates(
     for stage in STAGES:
         inside = [r for r in ranked if r.stage == stage]
         stages[stage] = max((r.best_score for r in inside), default=None)
-    return {
-        "ranking": [r.name for r in ranked],
-        "threshold": threshold,
-        "null_score": null_score,
-        "explained": closes and agrees(kernel) and not indistinct,
-        "top": None if top is None else top.name,
-        "kernel_rungs": on,
-        "kernel_closure": kernel,
-        "kernel_strength": None if top is None else top.strengths[kernel_at],
-        "kernel_threshold": KERNEL_MIN_CLOSURE,
-        "look_alike": closes and not agrees(kernel),
-        "neutral_in_interval": indistinct,
-        "confusable_with_top": confusable,
-        "stage_scores": stages,
-    }
+    return Ranking(
+        ranking=[r.name for r in ranked],
+        threshold=threshold,
+        null_score=null_score,
+        explained=closes and agrees(kernel) and not indistinct,
+        top=None if top is None else top.name,
+        kernel_rungs=on,
+        kernel_closure=kernel,
+        kernel_strength=None if top is None else top.strengths[kernel_at],
+        kernel_threshold=KERNEL_MIN_CLOSURE,
+        look_alike=closes and not agrees(kernel),
+        neutral_in_interval=indistinct,
+        confusable_with_top=confusable,
+        stage_scores=stages,
+    )
 
 
 def _distance_at_best(result: CandidateResult) -> float:

@@ -51,26 +51,26 @@ def decide_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE
     null = CandidateResult.from_json(report.null) if report.null else None
     ranking = rank_candidates(results, null, report.ranking.kernel_rungs, min_closure=min_closure)
     alone = {r.name: r.best_score for r in results}
-    ranking = {**explained_together(ranking, report.shapley, alone), "replayed": True}
-    top = ranking["top"]
+    ranking = dataclasses.replace(explained_together(ranking, report.shapley, alone), replayed=True)
+    top = ranking.top
     stacked = report.stacked
     if (
-        ranking["explained"]
+        ranking.explained
         or top is None
-        or ranking["neutral_in_interval"]
+        or ranking.neutral_in_interval
         or alone[top] < STACK_MIN_LEADER
     ):
         pass
     elif stacked is None or stacked["leader"] != top:
-        ranking["replayed"] = False
+        ranking = dataclasses.replace(ranking, replayed=False)
     elif stacked["best"] is not None and explains_together(
         stacked["score"],
         stacked["kernel_closure"],
-        ranking["threshold"],
+        ranking.threshold,
         [alone[top], alone[stacked["best"]]],
     ):
         ranking = explained_by_stack(ranking, stacked)
-    return Ranking.from_json(json_safe(ranking))
+    return Ranking.from_json(json_safe(ranking.to_json()))
 
 
 def decided_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> Diagnosis:

@@ -2,7 +2,7 @@
 
 import dataclasses
 
-from sim2real.result import Diagnosis, DiagnosisInputs
+from sim2real.result import Diagnosis, DiagnosisInputs, Ranking
 
 RANKING = {
     "ranking": [],
@@ -19,6 +19,13 @@ RANKING = {
     "confusable_with_top": [],
     "stage_scores": {},
 }
+
+
+def ranking_of(**fields) -> Ranking:
+    """A ranking with ``fields`` set, the rest as :data:`RANKING` has them."""
+    return Ranking.from_json({**RANKING, **fields})
+
+
 LOCATION = {
     "alpha": 0.05,
     "gap_p": 1.0,

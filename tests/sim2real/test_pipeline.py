@@ -27,7 +27,7 @@ from sim2real.study.rescore import decide_again
 from sim2real.study.seal import draw_answer, seal_set
 from simulator.cloth.rollout import SimSettings
 from simulator.cloth.scenes import ScenarioWind
-from tests.sim2real.reports import as_diagnosis
+from tests.sim2real.reports import as_diagnosis, ranking_of
 
 NET = {
     "_target_": "models.components.video_nets.CNNLSTMNet",
@@ -206,7 +206,7 @@ def test_drawn_answers_cover_single_pair_and_open_kinds():
 def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_all_add():
     from sim2real.pipeline import explained_together
 
-    ranking = {"explained": False, "top": "a", "threshold": 0.5, "look_alike": True}
+    ranking = ranking_of(explained=False, top="a", threshold=0.5, look_alike=True)
     alone = {"a": 0.3, "b": 0.2, "c": 0.2}
     shapley = {
         "coalitions": {"a+b": 0.8, "a+c": 0.7, "b+c": 0.9, "a+b+c": 0.95},
@@ -215,20 +215,20 @@ def test_a_coalition_explains_the_gap_only_when_its_kernel_closure_agrees_and_al
     out = explained_together(ranking, shapley, alone)
     # a+b closes more of the classifier gap but not of the kernel distance; b+c lacks the
     # top; a+b+c passes both, but without a it closes 0.9 of the 0.95: a adds, so it wins
-    assert out["explained"] and out["explained_by"] == ["a", "b", "c"] and not out["look_alike"]
-    assert out["explained_by_kernel_closure"] == 0.9
+    assert out.explained and out.explained_by == ["a", "b", "c"] and not out.look_alike
+    assert out.explained_by_kernel_closure == 0.9
     shapley["coalitions"]["a+b+c"] = 0.85  # now a lowers b+c's 0.9: a rides along
     out = explained_together(ranking, shapley, alone)
-    assert out["explained_by"] == ["a", "c"] and out["explained_by_kernel_closure"] == 0.6
+    assert out.explained_by == ["a", "c"] and out.explained_by_kernel_closure == 0.6
     shapley["kernel_closure"]["a+c"] = 0.4
     assert explained_together(ranking, shapley, alone) == ranking
     shapley["kernel_closure"]["a+c"] = None  # no rung above its MMD² floor: cannot refute
-    assert explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
+    assert explained_together(ranking, shapley, alone).explained_by == ["a", "c"]
     shapley["coalitions"]["a+c"] = 0.6  # above the threshold, but not by the margin
     assert explained_together(ranking, shapley, alone) == ranking
     shapley["coalitions"]["a+c"] = 0.9  # passes again, unless a cannot be told from its absence
-    assert explained_together(ranking, shapley, alone)["explained_by"] == ["a", "c"]
-    indistinct = {**ranking, "neutral_in_interval": True}
+    assert explained_together(ranking, shapley, alone).explained_by == ["a", "c"]
+    indistinct = dataclasses.replace(ranking, neutral_in_interval=True)
     assert explained_together(indistinct, shapley, alone) == indistinct
 
 
@@ -646,7 +646,7 @@ def test_rescore_decides_stored_sets_again_beside_the_blind_table(world, tmp_pat
     report = {
         "candidates": {fit.name: {**fit.to_json(), "best": fit.best}},
         "null": null.to_json(),
-        "ranking": rank_candidates([fit], null, ["pixel"]),
+        "ranking": rank_candidates([fit], null, ["pixel"]).to_json(),
         "shapley": None,
         "stacked": None,
         "scored_rungs": ["pixel"],

@@ -27,7 +27,7 @@ def _report(fits, null_score=-0.2, kernel_rungs=(), shapley=None, stacked=None):
     report = {
         "candidates": {f.name: {**f.to_json(), "best": f.best} for f in fits},
         "null": null.to_json(),
-        "ranking": ranking,
+        "ranking": ranking.to_json(),
         "shapley": shapley,
         "stacked": stacked,
     }

@@ -8,6 +8,7 @@ from sim2real.diagnosis import OPEN_SET_MARGIN, CandidateResult
 from sim2real.pipeline import _stack_on_leader
 from sim2real.stacking import STACK_MIN_LEADER, stack_label, stacked_fit
 from simulator.cloth.scenes import ScenarioWind
+from tests.sim2real.reports import ranking_of
 
 SPEC = DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=SizePreset("t", 2, 1, 0, 0))
 LIBRARY = candidate_library(SPEC)
@@ -93,13 +94,7 @@ def test_a_pair_explains_only_under_the_coalition_rules(case, pair, kernel, alon
 
 
 def test_a_leader_that_simulates_is_held_and_only_re_rendering_candidates_are_partners():
-    ranking = {
-        "explained": False,
-        "top": LIFT.name,
-        "threshold": THRESHOLD,
-        "kernel_rungs": [],
-        "look_alike": False,
-    }
+    ranking = ranking_of(explained=False, top=LIFT.name, threshold=THRESHOLD)
     plan = [(LIFT, (0.1, 0.35, 1.2)), (BLUR, (0.1, 1.0)), (SHAKE, (0.001, 0.012))]
     results = [
         _result(LIFT.name, plan[0][1], (0.1, 0.45, 0.2)),
@@ -117,8 +112,8 @@ def test_a_leader_that_simulates_is_held_and_only_re_rendering_candidates_are_pa
     assert set(fit["partners"]) == {BLUR.name, SHAKE.name}
     assert all(label.startswith(f"stack:{LIFT.name}@0.35+") for label in world.built)
     assert fit["refit"] is None and fit["best"] == SHAKE.name
-    assert ranked["explained"] and ranked["explained_by"] == [LIFT.name, SHAKE.name]
-    assert ranked["explained_by_score"] == 0.9
+    assert ranked.explained and ranked.explained_by == [LIFT.name, SHAKE.name]
+    assert ranked.explained_by_score == 0.9
 
 
 def test_no_stacked_fit_when_explained_or_the_leader_closes_too_little():
@@ -132,9 +127,9 @@ def test_no_stacked_fit_when_explained_or_the_leader_closes_too_little():
         raise AssertionError("no set may be built")
 
     for ranking, results in [
-        ({"explained": True, "top": SHAKE.name}, weak),
-        ({"explained": False, "top": None}, weak),
-        ({"explained": False, "top": SHAKE.name, "threshold": THRESHOLD}, weak),
+        (ranking_of(explained=True, top=SHAKE.name), weak),
+        (ranking_of(explained=False, top=None), weak),
+        (ranking_of(explained=False, top=SHAKE.name, threshold=THRESHOLD), weak),
     ]:
         assert _stack_on_leader(ranking, plan, results, None, None, build=never, score=never) == (
             ranking,
