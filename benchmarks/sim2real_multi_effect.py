@@ -65,8 +65,16 @@ def _rows(folder: Path) -> list[dict]:
     return kept
 
 
+def _gain(after, before):
+    return None if None in (before, after) else after - before
+
+
 def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
-    """Pooled Pearson r of each (score, column) pair before and after, and the gains."""
+    """Pooled Pearson r of each (score, column) pair before and after, and the gains.
+
+    Where shrink ran a control (the same fine-tuning on the nominal data), also its r and the
+    gain over it: what the calibrated simulator adds beyond the extra training.
+    """
     shrink = report.get("shrink") or {}
     every = shrink.get("score_correlations")
     if every is None:
@@ -84,15 +92,19 @@ def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
                 f"--loop: no {score} vs {column} correlation; rerun shrink with "
                 f"columns=[...,{column}]"
             ) from None
-        out[f"{score} vs {column}"] = {
+        entry = {
             "before": before["pearson"],
             "before_ci": before["pearson_ci"],
             "after": after["pearson"],
             "after_ci": after["pearson_ci"],
-            "gain": None
-            if None in (before["pearson"], after["pearson"])
-            else after["pearson"] - before["pearson"],
+            "gain": _gain(after["pearson"], before["pearson"]),
         }
+        if "control" in every:
+            control = every["control"]["all"][score][column]
+            entry["control"] = control["pearson"]
+            entry["control_ci"] = control["pearson_ci"]
+            entry["gain_over_control"] = _gain(after["pearson"], control["pearson"])
+        out[f"{score} vs {column}"] = entry
     return out
 
 
@@ -123,12 +135,16 @@ def figures(rows: list[dict], loop: dict | None) -> dict:
         "independent_engine": loop,
         "independent_engine_r_gain_min": None,
         "independent_engine_r_after_min": None,
+        "independent_engine_r_gain_over_control_min": None,
     }
     if loop:
-        gains = [v["gain"] for v in loop.values()]
-        afters = [v["after"] for v in loop.values()]
-        out["independent_engine_r_gain_min"] = None if None in gains else min(gains)
-        out["independent_engine_r_after_min"] = None if None in afters else min(afters)
+        for key, field in (
+            ("independent_engine_r_gain_min", "gain"),
+            ("independent_engine_r_after_min", "after"),
+            ("independent_engine_r_gain_over_control_min", "gain_over_control"),
+        ):
+            values = [v.get(field) for v in loop.values()]
+            out[key] = None if None in values else min(values)
     measured = {
         **out,
         "stage_share_error_pts_max": out["stage_share_error_pts"]["max"],

@@ -137,7 +137,8 @@ def answer(result: Diagnosis) -> str:
             + ", the model's Spearman ρ with measured stiffness went "
             f"{_fmt(before['stiffness']['spearman'], 2)} -> "
             f"{_fmt(after['stiffness']['spearman'], 2)} and with density "
-            f"{_fmt(before['density']['spearman'], 2)} -> {_fmt(after['density']['spearman'], 2)}."
+            f"{_fmt(before['density']['spearman'], 2)} -> {_fmt(after['density']['spearman'], 2)}"
+            f"{_control_clause(shrink)}."
         )
     return " ".join(parts)
 
@@ -245,7 +246,7 @@ def verdict(result: Diagnosis) -> str:
             f"{_fmt(before['stiffness']['spearman'], 2)} -> "
             f"{_fmt(after['stiffness']['spearman'], 2)}, with density "
             f"{_fmt(before['density']['spearman'], 2)} -> "
-            f"{_fmt(after['density']['spearman'], 2)}."
+            f"{_fmt(after['density']['spearman'], 2)}{_control_clause(shrink)}."
         )
     return " ".join(parts)
 
@@ -533,6 +534,18 @@ def _predictivity_lines(srcc: dict | None) -> list[str]:
     ]
 
 
+def _control_clause(shrink: dict) -> str:
+    """What the same fine-tuning on the nominal data gave, where it was measured."""
+    control = shrink["correlations"].get("control")
+    if control is None:
+        return ""
+    stiffness, density = control["stiffness"]["spearman"], control["density"]["spearman"]
+    return (
+        f" (fine-tuned as long on the nominal data instead: {_fmt(stiffness, 2)} and "
+        f"{_fmt(density, 2)})"
+    )
+
+
 def _shrink_section(shrink: dict | None) -> list[str]:
     if shrink is None:
         return [
@@ -541,22 +554,19 @@ def _shrink_section(shrink: dict | None) -> list[str]:
             "",
         ]
     effects = ", ".join(f"{e['name']} ({_fmt(e['strength'])})" for e in shrink["effects"])
+    runs = [k for k in ("before", "after", "control") if k in shrink["correlations"]]
     rows = []
     for target in ("stiffness", "density"):
         for kind in ("pearson", "spearman"):
-            b = shrink["correlations"]["before"][target]
-            a = shrink["correlations"]["after"][target]
-            ci_b, ci_a = b[f"{kind}_ci"], a[f"{kind}_ci"]
-            rows.append(
-                [
-                    target,
-                    kind,
-                    _fmt(b[kind], 2),
-                    "–" if ci_b is None else _ci(ci_b),
-                    _fmt(a[kind], 2),
-                    "–" if ci_a is None else _ci(ci_a),
-                ]
-            )
+            row = [target, kind]
+            for label in runs:
+                entry = shrink["correlations"][label][target]
+                ci = entry[f"{kind}_ci"]
+                row += [_fmt(entry[kind], 2), "–" if ci is None else _ci(ci)]
+            rows.append(row)
+    header = ["measured", "r"]
+    for label in runs:
+        header += [_RUN_NAMES[label], "95 % CI"]
     gap_rows = [
         [
             name,
@@ -569,7 +579,12 @@ def _shrink_section(shrink: dict | None) -> list[str]:
     ]
     return [
         f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
-        f"fine-tuned for {shrink['epochs']} epochs from the run's weights."
+        f"fine-tuned for {shrink['epochs']} epochs from the run's weights"
+        + (
+            "; as a control, fine-tuned as long from the same weights on the nominal data."
+            if shrink.get("control")
+            else "."
+        )
         + (
             ""
             if shrink.get("closure_predicted_total") is None
@@ -578,7 +593,7 @@ def _shrink_section(shrink: dict | None) -> list[str]:
         ),
         "",
         *_predictivity_lines(shrink.get("predictivity")),
-        markdown_table(["measured", "r", "before", "95 % CI", "after", "95 % CI"], rows),
+        markdown_table(header, rows),
         markdown_table(
             [
                 "rung",
@@ -593,6 +608,10 @@ def _shrink_section(shrink: dict | None) -> list[str]:
     ]
 
 
+_RUN_NAMES = {"before": "before", "after": "after", "control": "nominal fine-tune"}
+"""Column names of the shrink section's runs: the model, retrained, and the control."""
+
+
 def _score_correlation_lines(correlations: dict | None) -> list[str]:
     """Every score against every measured column, pooled and per wind, before and after.
 
@@ -601,29 +620,29 @@ def _score_correlation_lines(correlations: dict | None) -> list[str]:
     if not correlations:
         return []
     before, after = correlations["before"], correlations["after"]
+    control = correlations.get("control")
+
+    def change(a, b):
+        return None if b["pearson"] is None or a["pearson"] is None else a["pearson"] - b["pearson"]
+
+    def cells(entry):
+        ci = entry["pearson_ci"]
+        return [_fmt(entry["pearson"], 2), "–" if ci is None else _ci(ci)]
+
     rows = []
     for scope, by_score in before.items():
         for score, by_column in by_score.items():
             for column, b in by_column.items():
                 a = after[scope][score][column]
-                change = (
-                    None
-                    if b["pearson"] is None or a["pearson"] is None
-                    else a["pearson"] - b["pearson"]
-                )
-                rows.append(
-                    [
-                        "pooled" if scope == "all" else scope,
-                        score,
-                        column,
-                        _fmt(b["pearson"], 2),
-                        "–" if b["pearson_ci"] is None else _ci(b["pearson_ci"]),
-                        _fmt(a["pearson"], 2),
-                        "–" if a["pearson_ci"] is None else _ci(a["pearson_ci"]),
-                        _fmt(change, 2),
-                    ]
-                )
+                row = ["pooled" if scope == "all" else scope, score, column, *cells(b), *cells(a)]
+                row.append(_fmt(change(a, b), 2))
+                if control is not None:
+                    c = control[scope][score][column]
+                    row += [*cells(c), _fmt(change(a, c), 2)]
+                rows.append(row)
     header = ["videos", "score", "measured", "before", "95 % CI", "after", "95 % CI", "change"]
+    if control is not None:
+        header += ["nominal fine-tune", "95 % CI", "after − nominal"]
     return [
         "",
         "Every score against every measured column (Pearson r; 95 % intervals from a bootstrap "

@@ -1,12 +1,14 @@
 """How far the gap shrinks: retrain with the identified effect, measure before and after.
 
-``python -m sim2real.shrink report=outputs/sim2real/<name> [epochs=8] [preset=small]``
-reads a diagnosis (``report.json``), regenerates the training data of its run with every
-factor of the calibrated simulator S* (or, without a joint fit, the named effect) at its
-fitted strength (``datasets.generation``, same scene, seeds and settings;
+``python -m sim2real.shrink report=outputs/sim2real/<name> [epochs=8] [preset=small]
+[control=true]`` reads a diagnosis (``report.json``), regenerates the training data of its run
+with every factor of the calibrated simulator S* (or, without a joint fit, the named effect) at
+its fitted strength (``datasets.generation``, same scene, seeds and settings;
 ``effects=name=strength,...`` overrides the choice), fine-tunes the run's model on it from its
 weights (``models.training.train`` with the run's own config, ``init_from`` = its checkpoint),
-and reports on the real set: Pearson and Spearman of the material score with measured stiffness
+and, with ``control``, fine-tunes it as long on the nominal data too (so that what the extra
+training alone changes is told from what the calibrated simulator changes), and reports on the
+real set: Pearson and Spearman of the material score with measured stiffness
 and density before vs after, with bootstrap intervals (``models.evaluate.evaluate_real``), and,
 per rung, the floor-corrected gap before (S vs R, old network) and after (S_e vs R, new
 network) beside the closure section 2 predicted, and the sim-to-real predictivity (SRCC,
@@ -26,13 +28,14 @@ from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_output_dir
 from datasets.real_video import DEFAULT_COLUMNS
+from datasets.runs import find_run
 from datasets.spec import PRESETS, DatasetSpec
 
 from .candidates import candidate_library
 from .diagnosis import rung_gaps
 from .domains import real_clips, simulated_clips
 from .ladder import LadderFeatures, file_digest
-from .pipeline import SetContext, SetJob, build_set, load_run, real_ladder
+from .pipeline import SetContext, SetJob, build_set, real_ladder
 from .predictivity import predictivity
 from .report import json_safe, read_report, write_report
 from .result import Diagnosis
@@ -160,12 +163,14 @@ def shrink(
     seed: int = 0,
     columns: Sequence[str] = DEFAULT_COLUMNS,
     group: str | None = None,
+    control: bool = False,
 ) -> dict:
     """Retrain with the identified effect and measure the gap and correlations after.
 
     ``columns``: the measured ``labels.csv`` columns each score is correlated with (the
     first two, as in the thesis's Table 7.3, lead the report); ``group``: the column whose
-    equal values form one fabric for the grouped intervals.
+    equal values form one fabric for the grouped intervals; ``control``: also fine-tune as
+    long on the nominal data (the run's own training data at ``preset=same``) and evaluate it.
 
     Returns the section-3 dict (also stored in ``report.json`` and the rewritten reports).
     """
@@ -179,7 +184,8 @@ def shrink(
         raise ValueError(f"preset must be 'same' or one of {sorted(PRESETS)}, got {preset!r}")
     chosen = chosen_effects(result, effects)
     run = Path(inputs.run)
-    train_spec, checkpoint = load_run(run, inputs.data_dir)
+    trained = find_run(run, inputs.data_dir)
+    train_spec, checkpoint = trained.spec, trained.checkpoint
     run_config = _run_config(run)  # checked before any data is generated
     size = train_spec.preset if preset == "same" else PRESETS[preset]
     retrain_spec = _apply(dataclasses.replace(train_spec, preset=size), chosen)
@@ -187,6 +193,19 @@ def shrink(
     data = out / "data"
     generate_dataset(retrain_spec, data, n_jobs=n_jobs, mesh_cache=inputs.mesh_cache)
     after_ckpt = _fine_tune(run_config, data, checkpoint, out / "train", epochs)
+    if control:
+        nominal_data = trained.data_dir
+        if size != train_spec.preset:
+            nominal_data = out / "control_data"
+            generate_dataset(
+                dataclasses.replace(train_spec, preset=size),
+                nominal_data,
+                n_jobs=n_jobs,
+                mesh_cache=inputs.mesh_cache,
+            )
+        control_ckpt = _fine_tune(
+            _run_config(run), nominal_data, checkpoint, out / "control_train", epochs
+        )
 
     clip_len, clip_stride = inputs.clip_len, inputs.clip_stride
     real_dir = Path(inputs.real_dir)
@@ -210,6 +229,18 @@ def shrink(
         columns,
         group,
     )
+    evaluated = {"before": before, "after": after}
+    if control:
+        evaluated["control"] = _correlations(
+            load_classifier(control_ckpt),
+            real_dir,
+            out / "control",
+            train_spec,
+            clip_len,
+            clip_stride,
+            columns,
+            group,
+        )
 
     # The gap after: S with the effect vs R, both seen by the fine-tuned network.
     nominal = DatasetSpec.from_json(inputs.nominal_spec)
@@ -285,14 +316,11 @@ def shrink(
         "epochs": epochs,
         "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
-        "correlations": {
-            "before": before["correlations"]["all"],
-            "after": after["correlations"]["all"],
-        },
-        "score_correlations": {
-            "before": before["score_correlations"],
-            "after": after["score_correlations"],
-        },
+        "correlations": {k: v["correlations"]["all"] for k, v in evaluated.items()},
+        "score_correlations": {k: v["score_correlations"] for k, v in evaluated.items()},
+        "control": (
+            {"data": str(nominal_data), "checkpoint": str(control_ckpt)} if control else None
+        ),
         "rungs": rungs,
         "predictivity": srcc,
         "closure_predicted_total": (
@@ -326,6 +354,8 @@ def run(cfg) -> dict:
         raise InputError(f"columns must be a non-empty list of labels.csv columns, got {columns!r}")
     if cfg.group is not None and not isinstance(cfg.group, str):
         raise InputError(f"group must be a labels.csv column or null, got {cfg.group!r}")
+    if not isinstance(cfg.control, bool):
+        raise InputError(f"control must be true or false, got {cfg.control!r}")
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
         return shrink(
@@ -336,6 +366,7 @@ def run(cfg) -> dict:
             n_jobs=n_jobs,
             columns=list(columns),
             group=cfg.group,
+            control=cfg.control,
         )
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None
@@ -344,8 +375,7 @@ def run(cfg) -> dict:
 def _command(cfg) -> None:
     """Hydra wrapper around :func:`run`: prints the correlations before and after."""
     section = run(cfg)
-    for label in ("before", "after"):
-        c = section["correlations"][label]
+    for label, c in section["correlations"].items():
         print(label, {k: (v["pearson"], v["spearman"]) for k, v in c.items()})
     print(f"report: {Path(cfg.report) / 'report.html'}")
 

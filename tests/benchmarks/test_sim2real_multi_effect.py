@@ -35,7 +35,7 @@ ROWS = [
 ]
 
 
-def _loop(before, after):
+def _loop(before, after, control=None):
     def corr(r):
         return {"pearson": r, "pearson_ci": [r - 0.1, r + 0.1]}
 
@@ -46,7 +46,8 @@ def _loop(before, after):
     }
     every = {
         label: {"all": {s: {c: corr(v)} for s, c in pairs.items()}}
-        for label, v in (("before", before), ("after", after))
+        for label, v in (("before", before), ("after", after), ("control", control))
+        if v is not None
     }
     return {"shrink": {"score_correlations": every}}
 
@@ -71,6 +72,15 @@ def test_figures_and_targets_from_a_round_and_a_loop():
         "quick_minutes": True,
     }
     assert "| factor_f1 | >= 0.8 | 0.75 | no |" in table(result)
+    assert result["independent_engine_r_gain_over_control_min"] is None  # no control run
+
+
+def test_a_control_fine_tune_gives_the_gain_over_extra_training_alone():
+    loop = loop_figures(_loop(0.25, 0.55, control=0.45))
+    assert loop["bend_score vs stiffness"]["control"] == 0.45
+    assert loop["bend_score vs stiffness"]["gain_over_control"] == pytest.approx(0.1)
+    result = figures(ROWS, loop)
+    assert result["independent_engine_r_gain_over_control_min"] == pytest.approx(0.1)
 
 
 def test_without_a_loop_its_targets_are_not_measured():

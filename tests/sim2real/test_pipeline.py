@@ -455,9 +455,12 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     out = tmp_path / "report"
     result = _diagnose(world, out, candidates=["visual.sensor_noise"], run=run, data_dir=None)
     assert result.ranking.top == "visual.sensor_noise"
-    section = shrink(out, epochs=2, preset="same", n_jobs=1)
+    section = shrink(out, epochs=2, preset="same", n_jobs=1, control=True)
     assert section["effects"][0]["name"] == "visual.sensor_noise"
-    for label in ("before", "after"):
+    # the control fine-tunes as long on the run's own (nominal) training data
+    assert Path(section["control"]["data"]) == data
+    assert Path(section["control"]["checkpoint"]).is_file()
+    for label in ("before", "after", "control"):
         for target in ("stiffness", "density"):
             entry = section["correlations"][label][target]
             assert entry["count"] == 8
@@ -485,6 +488,7 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     text = (out / "report.md").read_text()
     assert "## 3. How far it shrinks" in text and "fine-tuned for 2 epochs" in text
     assert "| pooled | bend_score | stiffness |" in text  # every score against every column
+    assert "nominal fine-tune" in text and "after − nominal" in text
     assert "SRCC" in text
     assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2
 
