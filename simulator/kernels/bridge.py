@@ -91,33 +91,34 @@ class ShellKernel:
         )
         return ShellKernel(geometry, slots, params, model.vert_mass.dtype)
 
-    def _args(self):
+    def _args(self) -> tuple[tuple, tuple]:
+        """``(geometry, params)`` as :func:`.shell.shell_assemble` takes them."""
         tri, rest_inv, tri_area, fvec, hinges, rest_angle, scale, area, knots = self.geometry
-        row0, fibres, samples, cumulative = self.params
-        membrane = (tri, rest_inv, tri_area)
-        return (
-            membrane,
-            (row0, fibres, fvec, STRETCH_SAMPLE_STRAIN),
-            (
-                hinges,
-                rest_angle,
-                scale,
-                area,
-                samples,
-                cumulative,
-                knots,
-                BEND_SCALE,
-            ),
+        tri_slots, hinge_slots = self.slots
+        geometry = (
+            tri,
+            rest_inv,
+            tri_area,
+            tri_slots,
+            fvec,
+            STRETCH_SAMPLE_STRAIN,
+            hinges,
+            rest_angle,
+            scale,
+            area,
+            knots,
+            BEND_SCALE,
+            hinge_slots,
         )
+        return geometry, self.params
 
     def value(self, x: torch.Tensor) -> torch.Tensor:
         """Energy [J] per instance, shape (B,) (from the last fused pass when it was at ``x``)."""
         last = self._last.get("x")
         if last is not None and last[0] is x and last[1] == x._version:
             return torch.from_numpy(self._last["out"][0].copy()).to(self.dtype)
-        (tri, rest_inv, tri_area), mem, bend = self._args()
         _match_threads()
-        out = shell_energy(_np(x), tri, rest_inv, tri_area, *mem, *bend)
+        out = shell_energy(_np(x), *self._args())
         return torch.from_numpy(out).to(self.dtype)
 
     def assemble(self, x: torch.Tensor, verts: int, width: int, *, values_needed: bool = True):
@@ -135,22 +136,8 @@ class ShellKernel:
         energy = np.zeros(batch)
         grad = np.zeros((batch, verts, 3))
         values = np.zeros((batch, verts * width, 3, 3))
-        (tri, rest_inv, tri_area), mem, bend = self._args()
-        tri_slots, hinge_slots = self.slots
         _match_threads()
-        shell_assemble(
-            _np(x),
-            tri,
-            rest_inv,
-            tri_area,
-            tri_slots,
-            *mem,
-            *bend,
-            hinge_slots,
-            energy,
-            grad,
-            values,
-        )
+        shell_assemble(_np(x), *self._args(), energy, grad, values)
         out = (energy, grad, values.reshape(batch, verts, width, 3, 3))
         self._last["x"] = (x, x._version)
         self._last["out"] = out
@@ -289,10 +276,8 @@ def minimize_whole(
     batch, verts = x0.shape[:2]
     free_b = free.expand(batch, verts, 1) if free.dim() == 2 else free
     quad, centre, force, const = quadratic
-    (tri, rest_inv, tri_area), mem, bend = shell._args()
-    tri_slots, hinge_slots = shell.slots
+    geometry, params = shell._args()
     _match_threads()
-    shell_args = (tri, rest_inv, tri_area, tri_slots, *mem, *bend, hinge_slots)
     newton = (
         int(settings.max_iters),
         float(settings.tol_dx),
@@ -308,7 +293,8 @@ def minimize_whole(
         _np(force),
         _np(const),
         _np(free_b[..., 0]),
-        shell_args,
+        geometry,
+        params,
         _solve_arrays(pattern, aggregates),
         newton,
     )

@@ -252,34 +252,28 @@ def _bending(x, hinge, rest_angle, scale, area, samples, cumulative, knots, bend
 
 
 @njit(cache=True, error_model="numpy")
-def _shell_instance(
-    x,
-    tri,
-    rest_inv,
-    tri_area,
-    tri_slots,
-    row0,
-    fibres,
-    fvec,
-    e_s,
-    hinges,
-    rest_angle,
-    edge_scale,
-    edge_area,
-    samples,
-    cumulative,
-    knots,
-    bend_scale,
-    hinge_slots,
-    want,
-    grad,
-    values,
-):
+def _shell_instance(x, geometry, row0, fibres, samples, cumulative, want, grad, values):
     """Energy of one instance [J]; with ``want`` also adds its gradient and Hessian blocks.
 
-    ``x`` (V, 3), ``row0`` (4,), ``fibres`` (8,), ``samples`` (E, 5), ``grad`` (V, 3) and
-    ``values`` (V * K, 3, 3) are this instance's; the rest as :func:`shell_assemble`.
+    ``x`` (V, 3), ``row0`` (4,), ``fibres`` (8,), ``samples`` and ``cumulative`` (E, 5),
+    ``grad`` (V, 3) and ``values`` (V * K, 3, 3) are this instance's; ``geometry`` as
+    :func:`shell_assemble`.
     """
+    (
+        tri,
+        rest_inv,
+        tri_area,
+        tri_slots,
+        fvec,
+        e_s,
+        hinges,
+        rest_angle,
+        edge_scale,
+        edge_area,
+        knots,
+        bend_scale,
+        hinge_slots,
+    ) = geometry
     g3 = np.empty((3, 3))
     h3 = np.empty((3, 3, 3, 3))
     g4 = np.empty((8, 3))
@@ -333,75 +327,45 @@ def _shell_instance(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shell_assemble(
-    pos,
-    tri,
-    rest_inv,
-    tri_area,
-    tri_slots,
-    row0,
-    fibres,
-    fvec,
-    e_s,
-    hinges,
-    rest_angle,
-    edge_scale,
-    edge_area,
-    samples,
-    cumulative,
-    knots,
-    bend_scale,
-    hinge_slots,
-    energy,
-    grad,
-    values,
-):
+def shell_assemble(pos, geometry, params, energy, grad, values):
     """Add energy (B,), gradient (B, V, 3) and PSD Hessian blocks into ELL ``values``.
 
     Args:
         pos: positions [m], (B, V, 3).
-        tri: triangles (F, 3).
-        rest_inv: inverse rest edge matrices (F, 2, 2) [1/m].
-        tri_area: rest areas (F,) [m²].
-        tri_slots: flat ELL slot ``row * K + k`` of block (a, b) of each triangle, (F, 3, 3).
-        row0: zero-strain membrane rows (B, 4) [N/m].
-        fibres: fibre strengths (B, 8) [N/m].
-        fvec: fibre vectors (8, 3).
-        e_s: fibre saturation strain.
-        hinges: hinges ``[o0, o1, v1, v2]`` (E, 4).
-        rest_angle: rest dihedral angles (E,) [rad].
-        edge_scale: ``l / A`` (E,) [1/m].
-        edge_area: ``A`` (E,) [m²].
-        samples: secant bending samples (B, E, 5) [N·m].
-        cumulative: psi at their curvatures (B, E, 5) [N/m]
+        geometry: what every instance shares, in this order:
+            tri: triangles (F, 3);
+            rest_inv: inverse rest edge matrices (F, 2, 2) [1/m];
+            tri_area: rest areas (F,) [m²];
+            tri_slots: flat ELL slot ``row * K + k`` of block (a, b) of each triangle,
+            (F, 3, 3);
+            fvec: fibre vectors (8, 3);
+            e_s: fibre saturation strain;
+            hinges: hinges ``[o0, o1, v1, v2]`` (E, 4);
+            rest_angle: rest dihedral angles (E,) [rad];
+            edge_scale: ``l / A`` (E,) [1/m];
+            edge_area: ``A`` (E,) [m²];
+            knots: the bending samples' curvatures (5,) [1/m];
+            bend_scale: the bending discrete-to-continuum factor;
+            hinge_slots: ELL slots of the hinge blocks, (E, 4, 4).
+        params: each instance's material, in this order:
+            row0: zero-strain membrane rows (B, 4) [N/m];
+            fibres: fibre strengths (B, 8) [N/m];
+            samples: secant bending samples (B, E, 5) [N·m];
+            cumulative: psi at their curvatures (B, E, 5) [N/m]
             (``bending.secant_knot_integrals``).
-        knots: their curvatures (5,) [1/m].
-        bend_scale: the bending discrete-to-continuum factor.
-        hinge_slots: ELL slots of the hinge blocks, (E, 4, 4).
         energy: output (B,), added to.
         grad: output (B, V, 3), added to.
         values: output (B, V * K, 3, 3), added to.
     """
+    row0, fibres, samples, cumulative = params
     for b in prange(pos.shape[0]):
         energy[b] += _shell_instance(
             pos[b],
-            tri,
-            rest_inv,
-            tri_area,
-            tri_slots,
+            geometry,
             row0[b],
             fibres[b],
-            fvec,
-            e_s,
-            hinges,
-            rest_angle,
-            edge_scale,
-            edge_area,
             samples[b],
             cumulative[b],
-            knots,
-            bend_scale,
-            hinge_slots,
             True,
             grad[b],
             values[b],
@@ -409,51 +373,21 @@ def shell_assemble(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shell_energy(
-    pos,
-    tri,
-    rest_inv,
-    tri_area,
-    row0,
-    fibres,
-    fvec,
-    e_s,
-    hinges,
-    rest_angle,
-    edge_scale,
-    edge_area,
-    samples,
-    cumulative,
-    knots,
-    bend_scale,
-):
+def shell_energy(pos, geometry, params):
     """Membrane + bending energy [J] per instance, (B,); arguments as :func:`shell_assemble`."""
+    row0, fibres, samples, cumulative = params
     batch = pos.shape[0]
     out = np.zeros(batch)
-    no_slots3 = np.zeros((1, 3, 3), dtype=tri.dtype)
-    no_slots4 = np.zeros((1, 4, 4), dtype=tri.dtype)
     for b in prange(batch):
         unused_grad = np.empty((1, 3))
         unused_values = np.empty((1, 3, 3))
         out[b] = _shell_instance(
             pos[b],
-            tri,
-            rest_inv,
-            tri_area,
-            no_slots3,
+            geometry,
             row0[b],
             fibres[b],
-            fvec,
-            e_s,
-            hinges,
-            rest_angle,
-            edge_scale,
-            edge_area,
             samples[b],
             cumulative[b],
-            knots,
-            bend_scale,
-            no_slots4,
             False,
             unused_grad,
             unused_values,

@@ -48,7 +48,7 @@ def _quadratic(x, quad, centre, force, grad, values, diag_slots, want):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
+def newton_whole(x0, quad, centre, force, const, free, geometry, params, solve, newton):
     """Minimise ``shell(x) + 1/2 y^T Q y - g^T y + const`` (``y = x - z``) per instance.
 
     Args:
@@ -58,8 +58,8 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
         force: g, the other terms' force at ``z`` (B, V, 3) [N].
         const: their value at ``z`` (B,) [J] (only the line search's round-off slack sees it).
         free: 1 for free, 0 for pinned (B, V).
-        shell: the arguments of :func:`.shell.shell_assemble` from ``tri`` to ``hinge_slots``,
-            in its order.
+        geometry: the shell's shared arrays, as :func:`.shell.shell_assemble` takes them.
+        params: each instance's material, as :func:`.shell.shell_assemble` takes them.
         solve: ``(cols (V, K), diag_slots (V,), agg (V,), first (3A,), A)``: the ELL
             neighbours, each row's diagonal slot, the aggregates, the coarse envelope
             (:func:`.pcg.coarse_envelope`) and the aggregate count.
@@ -69,25 +69,7 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
     Returns:
         ``(x (B, V, 3), Newton iterations (B,), CG iterations (B,), last max update (B,))``.
     """
-    (
-        tri,
-        rest_inv,
-        tri_area,
-        tri_slots,
-        row0,
-        fibres,
-        fvec,
-        e_s,
-        hinges,
-        rest_angle,
-        edge_scale,
-        edge_area,
-        samples,
-        cumulative,
-        knots,
-        bend_scale,
-        hinge_slots,
-    ) = shell
+    row0, fibres, samples, cumulative = params
     cols, diag_slots, agg, first, n_agg = solve
     max_iters, tol_dx, cg_rtol, cg_max_iters, line_search, max_halvings = newton
     batch, verts, width = x0.shape[0], x0.shape[1], cols.shape[1]
@@ -115,27 +97,7 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
             grad[:] = 0.0
             flat[:] = 0.0
             energy = _shell_instance(
-                xb,
-                tri,
-                rest_inv,
-                tri_area,
-                tri_slots,
-                row0[b],
-                fibres[b],
-                fvec,
-                e_s,
-                hinges,
-                rest_angle,
-                edge_scale,
-                edge_area,
-                samples[b],
-                cumulative[b],
-                knots,
-                bend_scale,
-                hinge_slots,
-                True,
-                grad,
-                flat,
+                xb, geometry, row0[b], fibres[b], samples[b], cumulative[b], True, grad, flat
             )
             energy += _quadratic(xb, quad[b], centre[b], force[b], grad, flat, diag_slots, True)
             if line_search and not have_value:
@@ -172,23 +134,11 @@ def newton_whole(x0, quad, centre, force, const, free, shell, solve, newton):
                             trial[i, d] = xb[i, d] + alpha * dx[i, d]
                     trial_value = _shell_instance(
                         trial,
-                        tri,
-                        rest_inv,
-                        tri_area,
-                        tri_slots,
+                        geometry,
                         row0[b],
                         fibres[b],
-                        fvec,
-                        e_s,
-                        hinges,
-                        rest_angle,
-                        edge_scale,
-                        edge_area,
                         samples[b],
                         cumulative[b],
-                        knots,
-                        bend_scale,
-                        hinge_slots,
                         False,
                         no_grad,
                         no_values,
