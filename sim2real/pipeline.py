@@ -8,6 +8,7 @@ is new; the report folder receives complete files only.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -28,6 +29,7 @@ from .candidates import Candidate, candidate_library, select_candidates
 from .counterfactuals import batchnorm_swap, camera_signatures, match_camera, swap_closure
 from .detectability import candidate_detectability
 from .diagnosis import (
+    CandidateResult,
     Ranking,
     best_subset_values,
     explains_together,
@@ -504,52 +506,25 @@ def run_diagnosis(
         alpha=alpha,
     )
     detection, location, gaps = reference.detection, reference.location, reference.gaps
-    rungs = reference.rungs
     timing["fit"] = time.perf_counter() - tick
 
-    tick = time.perf_counter()
-    refined = _refine(plan, _score_plan(plan, bank, reference), budget.refine)
-    timing["fit"] += time.perf_counter() - tick
-    bank.build(_candidate_jobs(spec, refined))
-    plan = refined
-    tick = time.perf_counter()
-    results = _fit_plan(plan, bank, reference, n_boot=budget.n_boot, seed=seed)
-    timing["fit"] += time.perf_counter() - tick
-    for _ in range(FIT_CHECKS):  # measure each top candidate at its fitted strength, refit
-        checked = _check_fits(plan, results, budget.refine)
-        if checked == plan:
-            break
-        bank.build(_candidate_jobs(spec, checked))
-        plan = checked
-        tick = time.perf_counter()
-        results = _fit_plan(plan, bank, reference, n_boot=budget.n_boot, seed=seed)
-        timing["fit"] += time.perf_counter() - tick
-    tick = time.perf_counter()
-    null = reference.score("S'", "null", (None,), [bank["S'"]])
-    ranking = rank_candidates(results, null, kernel_rungs(gaps, rungs))
-    residual = _residual_gap(ranking, plan, results, bank, real_features, budget, alpha, seed)
-    probes = probe_transfer(nominal, real_features)
-    timing["fit"] += time.perf_counter() - tick
-    tick = time.perf_counter()
-    detectability = candidate_detectability(
-        plan, bank.sets, nominal, bank["S'"], _label, alpha=alpha, n_perm=budget.n_perm, seed=seed
-    )
-    timing["detectability"] = time.perf_counter() - tick
-    coalitions = _coalition_plan(plan, results, budget.shapley_top)
-    bank.build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
-    shapley = _shapley(coalitions, results, bank, reference)
-    ranking = explained_together(ranking, shapley, {r.name: r.best_score for r in results})
-    ranking, stacked = _stack_on_leader(
-        ranking,
-        plan,
-        results,
-        spec,
-        budget,
-        build=lambda specs: bank.build([SetJob(label, s) for label, s in specs.items()]),
-        score=lambda name, stage, values, labels: reference.score(
-            name, stage, values, [bank[label] for label in labels]
-        ),
-    )
+    fits = fit_candidates(plan, spec, bank, reference, budget=budget, seed=seed)
+    plan, results, null = fits.plan, fits.results, fits.null
+    with _timed(timing, "fit"):
+        probes = probe_transfer(nominal, real_features)
+    with _timed(timing, "detectability"):
+        detectability = candidate_detectability(
+            plan,
+            bank.sets,
+            nominal,
+            bank["S'"],
+            _label,
+            alpha=alpha,
+            n_perm=budget.n_perm,
+            seed=seed,
+        )
+    decision = decide(fits, spec, bank, reference, budget=budget, alpha=alpha, seed=seed)
+    ranking = decision.ranking
     tick = time.perf_counter()
     joint = _joint_fit(
         plan, results, null, spec, library, budget, bank=bank, reference=reference, seed=seed
@@ -592,7 +567,7 @@ def run_diagnosis(
         "rungs": {n: g.to_json() for n, g in gaps.items()},
         "detection_rungs": {n: g.to_json() for n, g in detection.items()},
         "location": location,
-        "scored_rungs": rungs,
+        "scored_rungs": reference.rungs,
         "reference_auc": reference.before.auc,
         "reference_classifier": reference.before.to_json(),
         "candidates": {
@@ -600,9 +575,9 @@ def run_diagnosis(
         },
         "null": {**null.to_json(), "kernel_closure": kernel(null)},
         "ranking": ranking.to_json(),
-        "residual": residual,
-        "shapley": shapley,
-        "stacked": stacked,
+        "residual": decision.residual,
+        "shapley": decision.shapley,
+        "stacked": decision.stacked,
         "joint": None if joint is None else joint.to_json(),
         "counterfactuals": swaps,
         "residual_stage": stage_of_residual(
@@ -620,6 +595,103 @@ def run_diagnosis(
     contact_sheet(out_dir / "clips.png", sheet_rows, context.box)
     write_report(diagnosis, out_dir, extra_figures=("clips.png",))
     return diagnosis
+
+
+@contextlib.contextmanager
+def _timed(timing: dict, key: str):
+    """Adds the seconds the block takes to ``timing[key]``."""
+    tick = time.perf_counter()
+    try:
+        yield
+    finally:
+        timing[key] = timing.get(key, 0.0) + time.perf_counter() - tick
+
+
+@dataclasses.dataclass(frozen=True)
+class CandidateFits:
+    """Every planned candidate scored against R, its strength fitted, beside the null draw."""
+
+    plan: list[tuple]
+    """(candidate, the strengths its sets were built at), refined around each best one."""
+    results: list[CandidateResult]
+    """Each candidate's closures, best strength and fitted strength with its interval."""
+    null: CandidateResult
+    """S' scored as a candidate: the closure of chance."""
+
+
+def fit_candidates(
+    plan: list[tuple], spec, bank: SetBank, reference: Reference, *, budget: Budget, seed: int
+) -> CandidateFits:
+    """Score the plan, refine its strengths, fit each, and measure each fit where it landed.
+
+    Refined strengths and fitted ones the budget asks to measure are built in ``bank``.
+    """
+    timing = bank.timing
+    with _timed(timing, "fit"):
+        refined = _refine(plan, _score_plan(plan, bank, reference), budget.refine)
+    bank.build(_candidate_jobs(spec, refined))
+    plan = refined
+    with _timed(timing, "fit"):
+        results = _fit_plan(plan, bank, reference, n_boot=budget.n_boot, seed=seed)
+    for _ in range(FIT_CHECKS):  # measure each top candidate at its fitted strength, refit
+        checked = _check_fits(plan, results, budget.refine)
+        if checked == plan:
+            break
+        bank.build(_candidate_jobs(spec, checked))
+        plan = checked
+        with _timed(timing, "fit"):
+            results = _fit_plan(plan, bank, reference, n_boot=budget.n_boot, seed=seed)
+    null = reference.score("S'", "null", (None,), [bank["S'"]])
+    return CandidateFits(plan, results, null)
+
+
+@dataclasses.dataclass(frozen=True)
+class Decision:
+    """Which candidate, or which candidates together, the rules name as the cause."""
+
+    ranking: Ranking
+    residual: dict | None
+    """The gap tests between R and the top candidate's best set (:func:`_residual_gap`)."""
+    shapley: dict | None
+    """The top candidates' coalitions and Shapley values (:func:`_shapley`)."""
+    stacked: dict | None
+    """The fit of a partner on top of the leader (:func:`sim2real.stacking.stacked_fit`)."""
+
+
+def decide(
+    fits: CandidateFits,
+    spec,
+    bank: SetBank,
+    reference: Reference,
+    *,
+    budget: Budget,
+    alpha: float,
+    seed: int,
+) -> Decision:
+    """Rank the candidates, then let a coalition or a stacked pair explain what one cannot.
+
+    Coalition and stacked sets are built in ``bank``.
+    """
+    plan, results = fits.plan, fits.results
+    with _timed(bank.timing, "fit"):
+        ranking = rank_candidates(results, fits.null, kernel_rungs(reference.gaps, reference.rungs))
+        residual = _residual_gap(ranking, plan, results, bank, reference.real, budget, alpha, seed)
+    coalitions = _coalition_plan(plan, results, budget.shapley_top)
+    bank.build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
+    shapley = _shapley(coalitions, results, bank, reference)
+    ranking = explained_together(ranking, shapley, {r.name: r.best_score for r in results})
+    ranking, stacked = _stack_on_leader(
+        ranking,
+        plan,
+        results,
+        spec,
+        budget,
+        build=lambda specs: bank.build([SetJob(label, s) for label, s in specs.items()]),
+        score=lambda name, stage, values, labels: reference.score(
+            name, stage, values, [bank[label] for label in labels]
+        ),
+    )
+    return Decision(ranking, residual, shapley, stacked)
 
 
 def _stage_swaps(
