@@ -1,6 +1,6 @@
 """How far the gap shrinks: retrain with the identified effect, measure before and after.
 
-``python -m sim2real.shrink report=outputs/sim2real/<name> [epochs=8] [preset=small]
+``python -m sim2real.shrink report=outputs/sim2real/<name> [epochs=8] [data_preset=small]
 [control=true]`` reads a diagnosis (``report.json``), regenerates the training data of its run
 with every factor of the calibrated simulator S* (or, without a joint fit, the named effect) at
 its fitted strength (``datasets.generation``, same scene, seeds and settings;
@@ -23,7 +23,7 @@ import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
-from common.checks import check_choice, check_int
+from common.checks import check_bool, check_choice, check_int
 from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_output_dir
@@ -170,7 +170,7 @@ def shrink(
     ``columns``: the measured ``labels.csv`` columns each score is correlated with (the
     first two, as in the thesis's Table 7.3, lead the report); ``group``: the column whose
     equal values form one fabric for the grouped intervals; ``control``: also fine-tune as
-    long on the nominal data (the run's own training data at ``preset=same``) and evaluate it.
+    long on the nominal data (the run's own training data at ``preset="same"``) and evaluate it.
 
     Returns the section-3 dict (also stored in ``report.json`` and the rewritten reports).
     """
@@ -340,8 +340,7 @@ def run(cfg) -> dict:
         raise InputError("report is required: give report=<a diagnosis folder>")
     epochs = check_int(cfg.epochs, "epochs", 1)
     n_jobs = check_int(cfg.n_jobs, "n_jobs", 1)
-    if cfg.preset != "same":
-        check_choice(cfg.preset, "preset", ["same", *sorted(PRESETS)])
+    check_choice(cfg.data_preset, "data_preset", ["same", *sorted(PRESETS)])
     effects = cfg.effects
     if effects is not None and (not isinstance(effects, str) or not effects.strip()):
         raise InputError(f"effects must be name=strength,... or null, got {effects!r}")
@@ -354,14 +353,13 @@ def run(cfg) -> dict:
         raise InputError(f"columns must be a non-empty list of labels.csv columns, got {columns!r}")
     if cfg.group is not None and not isinstance(cfg.group, str):
         raise InputError(f"group must be a labels.csv column or null, got {cfg.group!r}")
-    if not isinstance(cfg.control, bool):
-        raise InputError(f"control must be true or false, got {cfg.control!r}")
+    check_bool(cfg.control, "control")
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
         return shrink(
             cfg.report,
             epochs=epochs,
-            preset=str(cfg.preset),
+            preset=str(cfg.data_preset),
             effects=effects,
             n_jobs=n_jobs,
             columns=list(columns),

@@ -12,9 +12,11 @@ import pytest
         ("columns=[]", "columns"),
         ("columns=stiffness", "columns"),
         ("group=[a]", "group"),
+        ("data_preset=huge", "data_preset"),
+        ("control=maybe", "control"),
     ],
 )
-def test_shrink_names_a_bad_columns_or_group_field(tmp_path, override, field):
+def test_shrink_names_a_bad_field(tmp_path, override, field):
     done = subprocess.run(
         [sys.executable, "-m", "sim2real.shrink", f"report={tmp_path}", override],
         capture_output=True,
