@@ -29,7 +29,7 @@ def test_the_patterns_catch_what_they_are_for():
 
 
 def test_the_sim2real_page_is_short_enough_to_read_through():
-    assert len((ROOT / "docs" / "sim2real.md").read_text().splitlines()) < 300
+    assert len((ROOT / "docs" / "sim2real.md").read_text().splitlines()) < 260
 
 
 def test_the_accuracy_table_is_what_the_ledger_gives():
