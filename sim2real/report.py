@@ -581,6 +581,11 @@ def _shrink_section(shrink: dict | None) -> list[str]:
         f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
         f"fine-tuned for {shrink['epochs']} epochs from the run's weights"
         + (
+            ""
+            if shrink.get("lr_scale") is None
+            else f" at {shrink['lr_scale']:g} of its training rate"
+        )
+        + (
             "; as a control, fine-tuned as long from the same weights on the nominal data."
             if shrink.get("control")
             else "."

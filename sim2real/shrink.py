@@ -95,8 +95,19 @@ def _run_config(run: Path):
     return read_run_config(config, "run")
 
 
-def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) -> Path:
+def _fine_tune(
+    cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int, lr_scale: float
+) -> Path:
+    """Fine-tune the run's model on ``data_dir`` from ``checkpoint`` at ``lr_scale`` of its rate.
+
+    At the training rate a fresh optimizer undoes a converged model (measured: held-out
+    accuracy 0.46 -> 0.14 in the first epoch on the run's own data).
+    """
     from omegaconf import OmegaConf
+
+    lr = OmegaConf.select(cfg, "model.optimizer.lr")
+    if lr is None:
+        raise InputError("run: its config has no model.optimizer.lr to scale for fine-tuning")
 
     for key, value in {
         "dataset.dir": str(data_dir),
@@ -105,6 +116,7 @@ def _fine_tune(cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int) ->
         "paths.work_dir": str(out),
         "init_from": str(checkpoint),
         "trainer.max_epochs": epochs,
+        "model.optimizer.lr": float(lr) * lr_scale,
         "test": False,
         "ckpt_path": "auto",
     }.items():
@@ -164,13 +176,15 @@ def shrink(
     columns: Sequence[str] = DEFAULT_COLUMNS,
     group: str | None = None,
     control: bool = False,
+    lr_scale: float = 0.1,
 ) -> dict:
     """Retrain with the identified effect and measure the gap and correlations after.
 
     ``columns``: the measured ``labels.csv`` columns each score is correlated with (the
     first two, as in the thesis's Table 7.3, lead the report); ``group``: the column whose
     equal values form one fabric for the grouped intervals; ``control``: also fine-tune as
-    long on the nominal data (the run's own training data at ``preset="same"``) and evaluate it.
+    long on the nominal data (the run's own training data at ``preset="same"``) and evaluate it;
+    ``lr_scale``: the fine-tuning rate as a fraction of the run's training rate.
 
     Returns the section-3 dict (also stored in ``report.json`` and the rewritten reports).
     """
@@ -192,7 +206,7 @@ def shrink(
     out = report_dir / "shrink"
     data = out / "data"
     generate_dataset(retrain_spec, data, n_jobs=n_jobs, mesh_cache=inputs.mesh_cache)
-    after_ckpt = _fine_tune(run_config, data, checkpoint, out / "train", epochs)
+    after_ckpt = _fine_tune(run_config, data, checkpoint, out / "train", epochs, lr_scale)
     if control:
         nominal_data = trained.data_dir
         if size != train_spec.preset:
@@ -204,7 +218,7 @@ def shrink(
                 mesh_cache=inputs.mesh_cache,
             )
         control_ckpt = _fine_tune(
-            _run_config(run), nominal_data, checkpoint, out / "control_train", epochs
+            _run_config(run), nominal_data, checkpoint, out / "control_train", epochs, lr_scale
         )
 
     clip_len, clip_stride = inputs.clip_len, inputs.clip_stride
@@ -314,6 +328,7 @@ def shrink(
         "effects": [{"name": n, "strength": s} for n, s in chosen],
         "preset": preset,
         "epochs": epochs,
+        "lr_scale": lr_scale,
         "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
         "correlations": {k: v["correlations"]["all"] for k, v in evaluated.items()},
@@ -354,6 +369,9 @@ def run(cfg) -> dict:
     if cfg.group is not None and not isinstance(cfg.group, str):
         raise InputError(f"group must be a labels.csv column or null, got {cfg.group!r}")
     check_bool(cfg.control, "control")
+    lr_scale = cfg.lr_scale
+    if isinstance(lr_scale, bool) or not isinstance(lr_scale, int | float) or not 0 < lr_scale <= 1:
+        raise InputError(f"lr_scale must be a number in (0, 1], got {lr_scale!r}")
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
         return shrink(
@@ -365,6 +383,7 @@ def run(cfg) -> dict:
             columns=list(columns),
             group=cfg.group,
             control=cfg.control,
+            lr_scale=float(lr_scale),
         )
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None

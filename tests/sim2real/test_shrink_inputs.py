@@ -14,6 +14,8 @@ import pytest
         ("group=[a]", "group"),
         ("data_preset=huge", "data_preset"),
         ("control=maybe", "control"),
+        ("lr_scale=0", "lr_scale"),
+        ("lr_scale=2", "lr_scale"),
     ],
 )
 def test_shrink_names_a_bad_field(tmp_path, override, field):

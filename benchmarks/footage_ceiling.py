@@ -1,0 +1,227 @@
+"""How much of each measured column a real set's footage carries, rung by rung.
+
+A model trained on simulations cannot read from real footage more than the footage carries
+where the model looks. On a diagnosed real set this fits, on the real clips themselves, a
+ridge regression from each rung's features (the hand-made rungs and the trained network's
+layers, as the diagnosis measured them) to each measured column, in log, holding out one
+fabric (every video of it) at a time, and gives the Pearson r between the held-out
+predictions (a video's clips averaged) and the measured values, pooled over the videos, with
+a 95 % bootstrap interval over fabrics. Both are taken relative to the training fold's mean
+value (a probe that learns nothing predicts that mean, which moves against the held-out
+value). Held-out probes on features that carry nothing still read negative r (the fitted
+direction turns against the held-out fabric), so r is compared with its null: the same probe
+with the values shuffled between fabrics (each fabric's videos kept together); ``p`` is the
+share of shuffles that read at least r. Fitted with R's own labels, it is an optimistic
+ceiling for a sim-trained model reading that rung, and a pessimistic measure of what the
+footage carries (a linear probe on fixed features). The ridge strength is chosen inside each
+training fold by generalised cross-validation.
+
+Usage: ``python -m benchmarks.footage_ceiling --report outputs/sim2real/<name>
+[--columns stiffness,density] [--group fabric] [--out ceiling.json]``. Prints a table and,
+as the last line, the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from common.commands import report_user_errors
+from common.errors import InputError
+from common.files import atomic_write_bytes
+from common.paths import check_output_file
+
+__all__ = ["ceiling", "main", "probe_r"]
+
+ALPHAS = np.logspace(-3, 4, 15)
+"""Ridge strengths tried by generalised cross-validation (features standardised)."""
+
+
+def _ridge_gcv(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Ridge weights (with intercept) at the GCV-best strength of :data:`ALPHAS`."""
+    mean_x, mean_y = x.mean(0), y.mean()
+    u, s, vt = np.linalg.svd(x - mean_x, full_matrices=False)
+    uy = u.T @ (y - mean_y)
+    n = len(y)
+    best = None
+    for alpha in ALPHAS:
+        shrink = s**2 / (s**2 + alpha)
+        fitted = u @ (shrink * uy)
+        residual = (y - mean_y) - fitted
+        gcv = (residual @ residual / n) / (1 - shrink.sum() / n) ** 2
+        if best is None or gcv < best[0]:
+            best = (gcv, alpha)
+    alpha = best[1]
+    w = vt.T @ (s / (s**2 + alpha) * uy)
+    return w, mean_y - mean_x @ w
+
+
+def probe_r(
+    x: np.ndarray,
+    clip_video: np.ndarray,
+    video_value: dict[str, float],
+    video_group: dict[str, str],
+    *,
+    n_boot: int = 1000,
+    n_null: int = 50,
+    seed: int = 0,
+) -> dict:
+    """Held-out-group Pearson r of a ridge probe from clip features ``x`` to a video value.
+
+    ``clip_video``: each clip's video; ``video_value``: the (log) value of each video;
+    ``video_group``: its fabric. Returns ``r``, its bootstrap interval over groups, its null
+    (``n_null`` shuffles of the values between groups: median, 95th percentile and ``p``) and
+    the per-video predictions.
+    """
+    found = _held_out(x, clip_video, video_value, video_group, n_boot=n_boot, seed=seed)
+    rng = np.random.default_rng([seed, 1])
+    groups = sorted({video_group[v] for v in video_value})
+    by_group = {g: sorted(v for v in video_value if video_group[v] == g) for g in groups}
+    null = []
+    for _ in range(n_null):
+        order = rng.permutation(len(groups))
+        shuffled = {}
+        for g, source in zip(groups, order, strict=True):
+            donor = by_group[groups[source]]
+            for i, v in enumerate(by_group[g]):
+                shuffled[v] = video_value[donor[i % len(donor)]]
+        null.append(_held_out(x, clip_video, shuffled, video_group, n_boot=0)["r"])
+    null = np.array([r for r in null if math.isfinite(r)])
+    found["null_median"] = float(np.median(null)) if len(null) else math.nan
+    found["null_p95"] = float(np.quantile(null, 0.95)) if len(null) else math.nan
+    found["p"] = float((1 + np.sum(null >= found["r"])) / (1 + len(null)))
+    return found
+
+
+def _held_out(x, clip_video, video_value, video_group, *, n_boot: int, seed: int = 0) -> dict:
+    """The probe's held-out r (and its bootstrap interval when ``n_boot``)."""
+    videos = sorted(set(clip_video.tolist()) & set(video_value))
+    keep = np.isin(clip_video, videos)
+    x, clip_video = x[keep], clip_video[keep]
+    scale = x.std(0)
+    x = (x - x.mean(0)) / np.where(scale > 0, scale, 1.0)
+    y_clip = np.array([video_value[v] for v in clip_video])
+    clip_group = np.array([video_group[v] for v in clip_video])
+    predicted = np.empty(len(clip_video))
+    centre = np.empty(len(clip_video))
+    for group in sorted(set(clip_group.tolist())):
+        out = clip_group == group
+        w, b = _ridge_gcv(x[~out], y_clip[~out])
+        predicted[out] = x[out] @ w + b
+        centre[out] = y_clip[~out].mean()
+    pred = {v: float(predicted[clip_video == v].mean()) for v in videos}
+    fold_mean = {v: float(centre[clip_video == v][0]) for v in videos}
+    groups = sorted({video_group[v] for v in videos})
+    by_group = {g: [v for v in videos if video_group[v] == g] for g in groups}
+
+    def pearson(vs):
+        a = np.array([pred[v] - fold_mean[v] for v in vs])
+        b = np.array([video_value[v] - fold_mean[v] for v in vs])
+        if a.std() == 0 or b.std() == 0:
+            return math.nan
+        return float(np.corrcoef(a, b)[0, 1])
+
+    rng = np.random.default_rng(seed)
+    boot = []
+    for _ in range(n_boot):
+        drawn = rng.choice(len(groups), len(groups))
+        boot.append(pearson([v for i in drawn for v in by_group[groups[i]]]))
+    boot = np.array(boot)
+    boot = boot[np.isfinite(boot)]
+    interval = (
+        [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))] if len(boot) else None
+    )
+    return {"r": pearson(videos), "r_ci": interval, "videos": len(videos), "predicted": pred}
+
+
+def ceiling(report_dir: Path, columns: list[str], group: str) -> dict:
+    """Every rung's probe r for every column on a diagnosed real set (module docstring)."""
+    from datasets.real_video import read_labels
+    from sim2real.reopen import report_real_features
+    from sim2real.report import read_report
+
+    result = read_report(report_dir, "--report")
+    real_dir = Path(result.inputs.real_dir)
+    rows = read_labels(real_dir, columns)
+    missing = [c for c in [*columns, group] if c not in rows[0].fields]
+    if missing:
+        raise InputError(
+            f"--columns/--group: {real_dir / 'labels.csv'} has no column {missing[0]!r}; "
+            f"it has {', '.join(rows[0].fields)}"
+        )
+    video_group = {row.fields["video"]: row.fields[group] for row in rows}
+    features = report_real_features(result.inputs)
+    clip_video = np.asarray(features.groups).astype(str)
+    out = {"report": str(report_dir), "group": group, "columns": {}}
+    for column in columns:
+        values = {}
+        for row in rows:
+            try:
+                value = float(row.fields[column])
+            except ValueError:
+                value = math.nan
+            if not value > 0:
+                raise InputError(
+                    f"--columns: {column} of video {row.fields['video']!r} must be a positive "
+                    f"number for a log probe, got {row.fields[column]!r}"
+                )
+            values[row.fields["video"]] = math.log(value)
+        out["columns"][column] = {
+            rung: probe_r(x, clip_video, values, video_group) for rung, x in features.rungs.items()
+        }
+    return out
+
+
+def _table(out: dict) -> str:
+    columns = list(out["columns"])
+    rungs = list(next(iter(out["columns"].values())))
+    lines = [
+        "| rung | " + " | ".join(f"{c}: r [95 % CI], null p95, p" for c in columns) + " |",
+        "|---|" + "---|" * len(columns),
+    ]
+    for rung in rungs:
+        cells = []
+        for column in columns:
+            entry = out["columns"][column][rung]
+            low, high = entry["r_ci"]
+            cells.append(
+                f"{entry['r']:.2f} [{low:.2f}, {high:.2f}], {entry['null_p95']:.2f}, "
+                f"{entry['p']:.2f}"
+            )
+        lines.append(f"| {rung} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> dict:
+    """Command line (see the module docstring)."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.footage_ceiling", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--report", required=True, help="a diagnosis's report folder")
+    parser.add_argument("--columns", default="stiffness,density", help="measured columns")
+    parser.add_argument("--group", default="fabric", help="the column that names a fabric")
+    parser.add_argument("--out", help="also write the JSON here")
+    args = parser.parse_args(argv)
+    if args.out:
+        check_output_file(args.out, "--out")
+    columns = [c.strip() for c in args.columns.split(",") if c.strip()]
+    if not columns:
+        raise InputError("--columns: give at least one measured column")
+    out = ceiling(Path(args.report), columns, args.group)
+    print(_table(out))
+    for column in out["columns"].values():
+        for entry in column.values():
+            entry.pop("predicted")
+    if args.out:
+        atomic_write_bytes(Path(args.out), (json.dumps(out, indent=2) + "\n").encode())
+    print(json.dumps(out, sort_keys=True))
+    return out
+
+
+if __name__ == "__main__":
+    main()
