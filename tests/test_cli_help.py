@@ -31,6 +31,7 @@ COMMANDS = [
     "benchmarks.detection_limits",
     "benchmarks.diagnose_bench",
     "benchmarks.ell_layout_probe",
+    "benchmarks.footage_ceiling",
     "benchmarks.gap_resolution",
     "benchmarks.input_audit",
     "benchmarks.sim2real_accuracy",

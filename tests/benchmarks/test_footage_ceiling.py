@@ -1,0 +1,50 @@
+"""The footage ceiling: held-out probes find a carried value and read noise as its null."""
+
+import numpy as np
+import pytest
+
+from benchmarks.footage_ceiling import main, probe_r
+
+
+def _footage(carried: bool, seed: int = 0):
+    """30 fabrics x 3 winds x 3 clips; the features carry the value or only the wind."""
+    rng = np.random.default_rng(seed)
+    values, groups, clips, rows = {}, {}, [], []
+    for fabric in range(30):
+        value = rng.normal()
+        for wind in range(3):
+            video = f"v{fabric:02d}{wind}"
+            values[video], groups[video] = value, f"f{fabric:02d}"
+            for _ in range(3):
+                noise = rng.normal(size=12)
+                signal = np.zeros(12)
+                signal[0] = value if carried else 0.0
+                signal[1] = wind  # a nuisance every video has
+                rows.append(signal + 0.5 * noise)
+                clips.append(video)
+    return np.array(rows), np.array(clips), values, groups
+
+
+def test_a_carried_value_is_found_beyond_its_null():
+    x, clips, values, groups = _footage(carried=True)
+    found = probe_r(x, clips, values, groups, n_boot=200, n_null=20)
+    assert found["r"] > 0.8 and found["r_ci"][0] > 0.5
+    assert found["p"] <= 1 / 21 + 1e-9 and found["null_p95"] < 0.5
+    assert found["videos"] == 90 and set(found["predicted"]) == set(values)
+
+
+def test_noise_reads_as_its_null_not_as_a_negative_ceiling():
+    ps = []
+    for seed in range(3):
+        x, clips, values, groups = _footage(carried=False, seed=seed)
+        found = probe_r(x, clips, values, groups, n_boot=50, n_null=20, seed=seed)
+        assert found["r"] < found["null_p95"] + 0.2
+        ps.append(found["p"])
+    assert max(ps) > 0.1  # not all below the null: nothing is found in noise
+
+
+def test_a_folder_without_a_diagnosis_is_refused_in_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--report", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --report")
