@@ -17,7 +17,7 @@ footage carries (a linear probe on fixed features). The ridge strength is chosen
 training fold by generalised cross-validation.
 
 Usage: ``python -m benchmarks.footage_ceiling --report outputs/sim2real/<name>
-[--columns stiffness,density] [--group fabric] [--out ceiling.json]``. Prints a table and,
+[--columns stiffness,density] [--group COLUMN] [--out ceiling.json]``. Prints a table and,
 as the last line, the JSON.
 """
 
@@ -138,25 +138,21 @@ def _held_out(x, clip_video, video_value, video_group, *, n_boot: int, seed: int
     return {"r": pearson(videos), "r_ci": interval, "videos": len(videos), "predicted": pred}
 
 
-def ceiling(report_dir: Path, columns: list[str], group: str) -> dict:
+def ceiling(report_dir: Path, columns: list[str], group: str | None) -> dict:
     """Every rung's probe r for every column on a diagnosed real set (module docstring)."""
-    from datasets.real_video import read_labels
+    from datasets.real_video import fabric_groups, read_labels
     from sim2real.reopen import report_real_features
     from sim2real.report import read_report
 
     result = read_report(report_dir, "--report")
     real_dir = Path(result.inputs.real_dir)
     rows = read_labels(real_dir, columns)
-    missing = [c for c in [*columns, group] if c not in rows[0].fields]
-    if missing:
-        raise InputError(
-            f"--columns/--group: {real_dir / 'labels.csv'} has no column {missing[0]!r}; "
-            f"it has {', '.join(rows[0].fields)}"
-        )
-    video_group = {row.fields["video"]: row.fields[group] for row in rows}
+    header = list(rows[0].fields)
+    labels, _, rule = fabric_groups(rows, header, group, real_dir / "labels.csv")
+    video_group = {row.fields["video"]: g for row, g in zip(rows, labels, strict=True)}
     features = report_real_features(result.inputs)
     clip_video = np.asarray(features.groups).astype(str)
-    out = {"report": str(report_dir), "group": group, "columns": {}}
+    out = {"report": str(report_dir), "group": rule, "columns": {}}
     for column in columns:
         values = {}
         for row in rows:
@@ -204,7 +200,10 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--report", required=True, help="a diagnosis's report folder")
     parser.add_argument("--columns", default="stiffness,density", help="measured columns")
-    parser.add_argument("--group", default="fabric", help="the column that names a fabric")
+    parser.add_argument(
+        "--group",
+        help="the column that names a fabric (default: fabric if present, else identical rows)",
+    )
     parser.add_argument("--out", help="also write the JSON here")
     args = parser.parse_args(argv)
     if args.out:

@@ -51,6 +51,7 @@ __all__ = [
     "RealVideoDataset",
     "SkippedVideo",
     "clip_starts",
+    "fabric_groups",
     "footage_files",
     "read_labels",
 ]
@@ -269,7 +270,7 @@ def footage_files(root: str | Path, columns: Sequence[str] = DEFAULT_COLUMNS) ->
     return files
 
 
-def _groups(rows: list[LabelRow], header: list[str], group: str | None, path: Path):
+def fabric_groups(rows: list[LabelRow], header: list[str], group: str | None, path: Path):
     """Group label per row, the group column used (``None``: label rows) and a description."""
     if group is None and AUTO_GROUP_COLUMN in header:
         group = AUTO_GROUP_COLUMN
@@ -337,7 +338,7 @@ class RealVideoDataset(Dataset):
         rows = read_labels(root, self.columns)
         header = list(rows[0].fields)
         labels = root / "labels.csv"
-        groups, self.group_column, self.group_rule = _groups(rows, header, group, labels)
+        groups, self.group_column, self.group_rule = fabric_groups(rows, header, group, labels)
         self.videos = [self.probe(row, g) for row, g in zip(rows, groups, strict=True)]
         by_path: dict[Path, int] = {}
         for row, video in zip(rows, self.videos, strict=True):
