@@ -1,11 +1,12 @@
 """Pseudo-real footage from an independent engine: MuJoCo flex cloth, MuJoCo's own renderer.
 
 ``python -m sim2real.study.independent --out DIR [--fabrics 30] [--winds 3] [--seed 0]
-[--size 112] [--frames N] [--fps 15] [--codec h264|mjpeg|png]`` writes a folder in the
-layout of real footage (:class:`datasets.real_video.RealVideoDataset`, ``docs/datasets.md``
-"Real footage"; Bouman et al. 2013: fabrics x winds), made by neither our simulator nor our
-renderer, so that the sim-to-real diagnosis can be checked on footage whose differences from
-our scene are known but were not made by our own switches:
+[--size 112] [--frames N] [--fps 15] [--codec h264|mjpeg|png] [--wind-drag
+isotropic|plate]`` writes a folder in the layout of real footage
+(:class:`datasets.real_video.RealVideoDataset`, ``docs/datasets.md`` "Real footage"; Bouman
+et al. 2013: fabrics x winds), made by neither our simulator nor our renderer, so that the
+sim-to-real diagnosis can be checked on footage whose differences from our scene are known but
+were not made by our own switches:
 
 - one video per fabric x wind (``vNNN.mp4`` / ``vNNN.avi``, or a folder of PNG frames with
   ``--codec png``), fabric-major (fabric 0 at W1, W2, W3, then fabric 1, ...);
@@ -42,7 +43,11 @@ sets' renderer), all on purpose:
   0.25 s smoothstep) and gusting: along-wind speed ``W (1 + 0.2 g_u(t))`` and a cross-wind
   ``0.1 W g_v(t)``, where ``g`` are independent smooth random processes (white noise through
   two first-order low-pass filters of 0.3 s, unit variance) drawn per video. Ours is
-  constant (its gusts are a switch that is off in the nominal scene).
+  constant (its gusts are a switch that is off in the nominal scene). ``--wind-drag plate``
+  replaces the fluid model by flat-plate drag per triangle (:class:`PlateDrag`: normal
+  pressure ``C_n`` 1.17 plus skin friction ``C_f`` 0.02, explicit forces on the vertices),
+  which, like ours, sees the cloth's orientation but differs in its coefficients, friction
+  and time integration.
 - **Pinning.** Three points of the top edge (both corners and its middle, as three clips on
   a rod); ours: the two top corners.
 - **Mass.** MuJoCo's flexcomp gives every vertex the same mass (``density * area /
@@ -104,6 +109,7 @@ from .mujoco_flex import AIR_DENSITY_KG_M3, AIR_VISCOSITY_PA_S, elastic_params
 
 __all__ = [
     "CODECS",
+    "WIND_DRAGS",
     "EngineFabric",
     "EngineScene",
     "FabricLook",
@@ -121,6 +127,8 @@ __all__ = [
 ]
 
 CODECS = ("h264", "mjpeg", "png")
+WIND_DRAGS = ("isotropic", "plate")
+"""Air drag laws of the engine's scene (:attr:`EngineScene.wind_drag`)."""
 TRAINING_FPS = 15.0
 """The training clips' frame rate [1/s] (``datasets.spec.SizePreset.fps``)."""
 CLIP_LEN = 10
@@ -179,6 +187,13 @@ class EngineScene:
     """Point the camera looks at [m] (``CameraSpec.wind``: (-0.04, 0.20, 0.81))."""
     camera_fovy_deg: float = 32.0
     """Vertical field of view [deg] (``CameraSpec.wind``: 30)."""
+    wind_drag: str = "isotropic"
+    """Air drag law: ``isotropic`` (MuJoCo's fluid model, blind to the cloth's normal) or
+    ``plate`` (flat-plate drag per triangle: normal pressure plus skin friction)."""
+    plate_normal_cd: float = 1.17
+    """Normal-pressure coefficient of the ``plate`` law (a flat plate broadside, Hoerner)."""
+    plate_friction_cd: float = 0.02
+    """Skin-friction coefficient of the ``plate`` law on the tangential air velocity."""
 
     def pin_grid(self) -> tuple[tuple[int, int], ...]:
         """Flexcomp grid indices (column, row) of the pinned vertices: corners and middle."""
@@ -386,6 +401,8 @@ def scene_mjcf(
     # fluid drag area per vertex body = (2 * inertiabox)^2 = its share of the cloth's area
     inertiabox = scene.size / (2.0 * n)
     centre_z = scene.height - 0.5 * scene.size
+    # the plate law applies its own forces (PlateDrag): MuJoCo's fluid model is then off
+    air = AIR_DENSITY_KG_M3 if scene.wind_drag == "isotropic" else 0.0
     pins = " ".join(f"{i} {j}" for i, j in scene.pin_grid())
     visual = ""
     if look is not None:
@@ -427,7 +444,7 @@ def scene_mjcf(
   <compiler usethread="false"/>
   <statistic extent="2" center="0 0 0.8"/>
   <option timestep="{scene.max_dt!r}" integrator="discrete" solver="Newton"
-          gravity="0 0 -9.81" wind="0 0 0" density="{AIR_DENSITY_KG_M3!r}"
+          gravity="0 0 -9.81" wind="0 0 0" density="{air!r}"
           viscosity="{AIR_VISCOSITY_PA_S!r}"/>{visual}
   <worldbody>{world}
     <flexcomp name="cloth" type="grid" dim="2" count="{n} {n} 1"
@@ -514,6 +531,67 @@ def _waviness(scene: EngineScene, rng: np.random.Generator, rest: np.ndarray) ->
     return field * (scene.waviness / rms if rms > 0 else 0.0)
 
 
+class PlateDrag:
+    """Flat-plate air drag on the flex triangles, applied as external forces on the vertices.
+
+    Each triangle of area ``A`` and unit normal ``n`` in air of relative velocity ``u`` (wind
+    minus the mean of its corners' velocities) feels ``0.5 rho A (C_n (u.n)|u.n| n + C_f |u_t|
+    u_t)``, ``u_t`` the tangential part, a third on each corner: unlike MuJoCo's fluid model it
+    sees the cloth's orientation, so a sheet edge-on to the wind feels only skin friction.
+    Positions and velocities come from ``qpos`` and ``qvel`` (the state the next step starts
+    from), so the force is explicit in the step.
+    """
+
+    def __init__(self, mujoco, model, data, scene: EngineScene):
+        """``data`` must hold the rest state (``qpos`` zero, after ``mj_forward``)."""
+        self._rest = np.array(data.flexvert_xpos)
+        self._triangles = np.asarray(model.flex_elem).reshape(-1, 3)
+        bodies = np.asarray(model.flex_vertbodyid)
+        self._free = np.flatnonzero(bodies > 0)
+        self._bodies = bodies[self._free]
+        qadr, dadr, axes = [], [], []
+        for body in self._bodies:
+            joints = np.flatnonzero(model.jnt_bodyid == body)
+            qadr.append(model.jnt_qposadr[joints])
+            dadr.append(model.jnt_dofadr[joints])
+            axes.append(np.array(data.xaxis[joints]))
+        self._qadr, self._dadr = np.array(qadr), np.array(dadr)
+        self._axes = np.array(axes)  # (free vertices, 3 slide joints, xyz)
+        self._half_rho = 0.5 * AIR_DENSITY_KG_M3
+        self._cn, self._cf = scene.plate_normal_cd, scene.plate_friction_cd
+
+    def vertex_forces(self, qpos: np.ndarray, qvel: np.ndarray, wind: np.ndarray) -> np.ndarray:
+        """Force [N] on every flex vertex, shape (V, 3) (pinned vertices' share included)."""
+        pos = self._rest.copy()
+        pos[self._free] += np.einsum("fj,fjk->fk", qpos[self._qadr], self._axes)
+        vel = np.zeros_like(pos)
+        vel[self._free] = np.einsum("fj,fjk->fk", qvel[self._dadr], self._axes)
+        a, b, c = (pos[self._triangles[:, i]] for i in range(3))
+        area_vector = 0.5 * np.cross(b - a, c - a)
+        area = np.linalg.norm(area_vector, axis=1)
+        normal = area_vector / np.maximum(area, 1e-12)[:, None]
+        air = wind - vel[self._triangles].mean(axis=1)
+        along = np.einsum("tk,tk->t", air, normal)
+        tangential = air - along[:, None] * normal
+        force = (
+            self._half_rho
+            * area[:, None]
+            * (
+                self._cn * (along * np.abs(along))[:, None] * normal
+                + self._cf * np.linalg.norm(tangential, axis=1)[:, None] * tangential
+            )
+        )
+        out = np.zeros_like(pos)
+        for i in range(3):
+            np.add.at(out, self._triangles[:, i], force / 3.0)
+        return out
+
+    def apply(self, data, wind: np.ndarray) -> None:
+        """Set the free vertices' external forces for the next step in air velocity ``wind``."""
+        force = self.vertex_forces(np.asarray(data.qpos), np.asarray(data.qvel), wind)
+        data.xfrc_applied[self._bodies, :3] = force[self._free]
+
+
 def _rollout(
     mujoco,
     model,
@@ -532,6 +610,7 @@ def _rollout(
     mujoco.mj_resetData(model, data)
     mujoco.mj_forward(model, data)
     rest = np.array(data.flexvert_xpos)
+    plate = PlateDrag(mujoco, model, data, scene) if scene.wind_drag == "plate" else None
     offsets = _waviness(scene, np.random.default_rng([*seed_key, _SHAPE_STREAM]), rest)
     bodies = np.asarray(model.flex_vertbodyid)
     for vert, body in enumerate(bodies):
@@ -540,11 +619,14 @@ def _rollout(
         for joint in np.flatnonzero(model.jnt_bodyid == body):
             # each free vertex has three orthonormal slide joints; y = out of plane
             data.qpos[model.jnt_qposadr[joint]] += offsets[vert] * data.xaxis[joint][1]
+    still = np.zeros(3)
     mass = model.body_mass[model.dof_bodyid]
     model.opt.timestep = scene.settle_dt
     model.dof_damping[:] = mass / scene.settle_damping_time
     model.opt.wind[:] = 0.0
     for _ in range(math.ceil(scene.settle_time / scene.settle_dt - 1e-9)):
+        if plate is not None:
+            plate.apply(data, still)
         mujoco.mj_step(model, data)
     model.dof_damping[:] = 0.0
     data.qvel[:] = 0.0
@@ -559,6 +641,8 @@ def _rollout(
     for frame in range(1, total):
         for sub in range(steps):
             model.opt.wind[:] = wind[(frame - 1) * steps + sub]
+            if plate is not None:
+                plate.apply(data, model.opt.wind)
             mujoco.mj_step(model, data)
         if frame >= lead:
             # mj_step leaves the positions it derived before integrating: bring the flex
@@ -765,6 +849,16 @@ def _record_video(
     }
 
 
+_WIND_DRAG_TEXT = {
+    "isotropic": "MuJoCo global fluid model (inertia-box, rho 1.2 kg/m^3) on the vertex "
+    "bodies: isotropic quadratic drag of each vertex's area share, blind to the cloth normal",
+    "plate": "flat-plate drag per flex triangle, applied as external vertex forces (explicit "
+    "in MuJoCo's step; its fluid model off): normal pressure C_n {scene.plate_normal_cd:g} "
+    "on the normal air speed squared plus skin friction C_f {scene.plate_friction_cd:g} on the "
+    "tangential air speed, a third on each corner",
+}
+
+
 def _differences(scene: EngineScene, codec: dict, fps: float) -> dict:
     """Every difference from our scene, as ``{topic: {"ours": ..., "here": ...}}``."""
     speeds = ", ".join(f"{s:g}" for s in scene.wind_speeds)
@@ -784,9 +878,7 @@ def _differences(scene: EngineScene, codec: dict, fps: float) -> dict:
         "wind_model": {
             "ours": "normal pressure drag (C_d 1) of each vertex's area-weighted normal "
             "(a third of its triangles) on the relative air velocity",
-            "here": "MuJoCo global fluid model (inertia-box, rho 1.2 kg/m^3) on the vertex "
-            "bodies: isotropic quadratic drag of each vertex's area share, blind to "
-            "the cloth normal",
+            "here": _WIND_DRAG_TEXT[scene.wind_drag].format(scene=scene),
         },
         "wind": {
             "ours": "constant, 0.75 / 1.5 / 2.5 m/s along +y with +-15 deg yaw jitter, "
@@ -902,6 +994,7 @@ def write_independent_set(
     if out.exists() and not overwrite:
         raise InputError(f"--out: {out} exists; choose another folder or pass --overwrite")
     scene = scene or EngineScene()
+    check_choice(scene.wind_drag, "--wind-drag", WIND_DRAGS)
     engine_path = out.with_name(out.name + ".engine.json")
 
     import cv2
@@ -968,6 +1061,7 @@ def write_independent_set(
         "frames": frames,
         "fps": fps,
         "codec": codec,
+        "wind_drag": scene.wind_drag,
     }
     engine = {
         "engine": "mujoco",
@@ -1019,10 +1113,17 @@ def main(argv: list[str] | None = None) -> None:
         default="h264",
         help=f"one of {', '.join(CODECS)} (h264 falls back to mp4v, then MJPG; default h264)",
     )
+    parser.add_argument(
+        "--wind-drag",
+        default="isotropic",
+        help=f"air drag law, one of {', '.join(WIND_DRAGS)} (isotropic: MuJoCo's fluid model, "
+        "blind to the cloth's normal; plate: flat-plate drag per triangle; default isotropic)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     fps = check_float(args.fps, "--fps", 1.0, 240.0)
+    drag = check_choice(args.wind_drag, "--wind-drag", WIND_DRAGS)
     engine = write_independent_set(
         args.out,
         fabrics=check_int(args.fabrics, "--fabrics", 1, 1000),
@@ -1034,6 +1135,7 @@ def main(argv: list[str] | None = None) -> None:
         codec=args.codec,
         overwrite=args.overwrite,
         progress=not args.no_progress,
+        scene=EngineScene(wind_drag=drag),
     )
     codec, frames = engine["codec"]["used"], engine["frames_per_video"]
     print(

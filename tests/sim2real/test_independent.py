@@ -165,11 +165,17 @@ def _motion(pos: np.ndarray) -> dict[str, float]:
     }
 
 
-def test_a_stiffer_fabric_moves_less_under_the_same_wind():
+def _mujoco():
     try:
-        independent.import_mujoco(render=False)
+        return independent.import_mujoco(render=False)
     except (ImportError, OSError, AttributeError) as error:
         pytest.skip(f"cannot import mujoco (a dev dependency): {error!r}")
+
+
+@pytest.mark.parametrize("drag", independent.WIND_DRAGS)
+def test_a_stiffer_fabric_deforms_less_under_the_same_wind(drag):
+    _mujoco()
+    scene = independent.EngineScene(wind_drag=drag)
     ranges = independent.measured_ranges()
     density = float(np.sqrt(np.prod(ranges["density"])))
     soft = independent.EngineFabric(
@@ -180,13 +186,88 @@ def test_a_stiffer_fabric_moves_less_under_the_same_wind():
     )
     # the same index, seed and level: the same gusts, waviness and fan yaw
     motion = {
-        name: _motion(independent.simulate_positions(fabric, 2, seed=0, frames=20))
+        name: _motion(independent.simulate_positions(fabric, 2, seed=0, frames=20, scene=scene))
         for name, fabric in (("soft", soft), ("stiff", stiff))
     }
     assert motion["soft"]["speed"] > 0.003  # W3 moves the cloth (m per frame)
-    assert motion["stiff"]["speed"] < motion["soft"]["speed"], motion
+    if drag == "isotropic":  # plate drag swings a stiff sheet as a whole about as fast
+        assert motion["stiff"]["speed"] < motion["soft"]["speed"], motion
     assert motion["stiff"]["nonrigid"] < 0.95 * motion["soft"]["nonrigid"], motion
     assert motion["stiff"]["out_of_plane"] < 0.9 * motion["soft"]["out_of_plane"], motion
+
+
+def _plate_sheet(rotation: np.ndarray | None = None):
+    """Plate drag on the flat rest sheet (x-z plane), optionally rotated about its top edge."""
+    mujoco = _mujoco()
+    scene = independent.EngineScene(wind_drag="plate", plate_friction_cd=0.05)
+    fabric = independent.draw_fabric(0, 0)
+    model = mujoco.MjModel.from_xml_string(independent.scene_mjcf(scene, fabric))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert model.opt.density == 0.0  # MuJoCo's own fluid model is off
+    drag = independent.PlateDrag(mujoco, model, data, scene)
+    qpos = np.zeros(model.nq)
+    if rotation is not None:
+        rest = np.array(data.flexvert_xpos)
+        centre = np.array([0.0, rest[:, 1].mean(), rest[:, 2].max()])  # on the pinned edge
+        moved = (rest - centre) @ rotation.T + centre
+        for vert, body in enumerate(model.flex_vertbodyid):
+            joints = np.flatnonzero(model.jnt_bodyid == body) if body > 0 else []
+            for joint in joints:  # orthonormal slide axes: displacement along each
+                qpos[model.jnt_qposadr[joint]] = (moved[vert] - rest[vert]) @ data.xaxis[joint]
+    return scene, drag, qpos, np.zeros(model.nv)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 35.0])
+def test_plate_drag_is_pressure_on_the_normal_plus_skin_friction(tilt_deg):
+    c, s = np.cos(np.radians(tilt_deg)), np.sin(np.radians(tilt_deg))
+    rotation = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])  # about x: tilts the sheet
+    scene, drag, qpos, qvel = _plate_sheet(rotation)
+    normal = rotation @ np.array([0.0, 1.0, 0.0])
+    area = scene.size**2
+    half_rho = 0.5 * 1.2
+    for wind in (np.array([0.0, 2.0, 0.0]), np.array([1.5, 0.0, 0.0]), np.array([0.3, -1.1, 0.4])):
+        total = drag.vertex_forces(qpos, qvel, wind).sum(axis=0)
+        along = wind @ normal
+        tangential = wind - along * normal
+        expected = (
+            half_rho
+            * area
+            * (
+                scene.plate_normal_cd * along * abs(along) * normal
+                + scene.plate_friction_cd * np.linalg.norm(tangential) * tangential
+            )
+        )
+        np.testing.assert_allclose(total, expected, rtol=1e-9, atol=1e-12)
+    # edge-on (wind in the sheet's plane): skin friction only, along the wind
+    edge = drag.vertex_forces(qpos, qvel, np.array([2.0, 0.0, 0.0])).sum(axis=0)
+    np.testing.assert_allclose(
+        edge, [half_rho * area * scene.plate_friction_cd * 4.0, 0.0, 0.0], rtol=1e-9, atol=1e-12
+    )
+
+
+def test_plate_drag_vanishes_on_cloth_moving_with_the_air():
+    scene, drag, qpos, qvel = _plate_sheet()
+    mujoco = _mujoco()
+    model = mujoco.MjModel.from_xml_string(
+        independent.scene_mjcf(scene, independent.draw_fabric(0, 0))
+    )
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    wind = np.array([0.4, 1.7, -0.2])
+    for joint in range(model.njnt):  # every free vertex at the air's velocity
+        qvel[model.jnt_dofadr[joint]] = wind @ data.xaxis[joint]
+    force = drag.vertex_forces(qpos, qvel, wind)
+    moving = np.asarray(model.flex_vertbodyid) > 0
+    still = np.zeros(3)
+    assert np.abs(force).max() > 0.0  # the triangles at the pins still feel the air
+    # far from the three pins every triangle moves with the air: no force
+    n = scene.vert_per_side
+    lower = np.arange(n * n).reshape(n, n)  # flexcomp grid index (column, row) -> vertex
+    far = lower[:, : n - 3].ravel()
+    assert moving[far].all()
+    np.testing.assert_allclose(force[far], 0.0, atol=1e-12)
+    np.testing.assert_allclose(drag.vertex_forces(qpos, np.zeros(model.nv), still), 0.0)
 
 
 def test_the_gusts_are_smooth_and_keep_their_mean():
@@ -261,6 +342,10 @@ def test_fabrics_zero_is_refused_in_one_line(tmp_path):
         (["--fps", "0"], "error: --fps must be a number in [1.0, 240.0], got 0"),
         (["--frames", "5"], "error: --frames must be an integer in [10, 100000], got 5"),
         (["--codec", "gif"], "error: --codec must be one of h264, mjpeg, png; got 'gif'"),
+        (
+            ["--wind-drag", "ellipsoid"],
+            "error: --wind-drag must be one of isotropic, plate; got 'ellipsoid'",
+        ),
     ],
 )
 def test_bad_values_are_refused_in_one_line_before_any_work(args, message, tmp_path, capsys):
