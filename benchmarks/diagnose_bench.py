@@ -18,6 +18,7 @@ same; its verdicts mean less). The last line is JSON with ``diagnose_minutes``,
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -61,7 +62,7 @@ def main() -> None:
     args = parser.parse_args()
     use_process_threads(1)
     from datasets.manifest import write_json
-    from sim2real.pipeline import Budget, run_diagnosis
+    from sim2real.pipeline import Budget, DiagnosisRequest, run_diagnosis
     from sim2real.study.seal import seal_set
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,21 +75,21 @@ def main() -> None:
         if not (real / "labels.csv").is_file():
             seal_set(real, base=spec, seed=args.seed, videos=args.videos, overwrite=True)
         seal_minutes = (time.perf_counter() - start) / 60
-        kwargs = {
-            "real_dir": real,
-            "run": run,
-            "data_dir": work / "data",
-            "cache_dir": work / "cache",
-            "mesh_cache": work / "meshes",
-            "budget": Budget(),
-            "candidates": "all",
-            "n_jobs": args.jobs,
-        }
+        request = DiagnosisRequest(
+            real_dir=real,
+            run=run,
+            data_dir=work / "data",
+            cache_dir=work / "cache",
+            mesh_cache=work / "meshes",
+            budget=Budget(),
+            candidates="all",
+            n_jobs=args.jobs,
+        )
         start = time.perf_counter()
-        result = run_diagnosis(out_dir=work / "report", **kwargs)
+        result = run_diagnosis(request, work / "report")
         minutes = (time.perf_counter() - start) / 60
         start = time.perf_counter()
-        run_diagnosis(out_dir=work / "report-again", progress=False, **kwargs)
+        run_diagnosis(dataclasses.replace(request, progress=False), work / "report-again")
         rerun = (time.perf_counter() - start) / 60
         split = {k: round(v / 60, 2) for k, v in result.timing.items()}
         clips = result.inputs.sim_clips * result.sets["total"]

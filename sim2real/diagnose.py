@@ -18,14 +18,15 @@ from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_name, check_output_dir
 
-from .pipeline import run_diagnosis
+from .pipeline import DiagnosisRequest, run_diagnosis
 from .report import verdict
+from .result import Diagnosis
 
 log = logging.getLogger(__name__)
 
 
-def run(cfg: DictConfig) -> dict:
-    """Run the configured diagnosis; returns the result dict."""
+def run(cfg: DictConfig) -> Diagnosis:
+    """Run the configured diagnosis."""
     name = cfg.name or f"{Path(str(cfg.real_dir)).name}-{Path(str(cfg.run)).name}"
     name = check_name(name, "name")  # the report folder's name: never a path
     out_dir = check_output_dir(cfg.out_dir or f"outputs/sim2real/{name}", "out_dir")
@@ -35,10 +36,9 @@ def run(cfg: DictConfig) -> dict:
     if not isinstance(candidates, str):
         candidates = [str(c) for c in candidates]
     check_choice(str(cfg.device), "device", ("auto", "cpu", "cuda"))
-    return run_diagnosis(
+    request = DiagnosisRequest(
         real_dir=cfg.real_dir,
         run=cfg.run,
-        out_dir=out_dir,
         cache_dir=cfg.cache_dir,
         mesh_cache=cfg.mesh_cache,
         budget=instantiate(cfg.budget),
@@ -55,6 +55,7 @@ def run(cfg: DictConfig) -> dict:
         name=name,
         progress=check_bool(cfg.progress, "progress"),
     )
+    return run_diagnosis(request, out_dir)
 
 
 def _command(cfg: DictConfig) -> None:

@@ -58,11 +58,12 @@ from .features import roi_box
 from .ladder import LadderFeatures, content_key, file_digest, ladder_features
 from .network import adapt_batchnorm, layer_features
 from .report import contact_sheet, json_safe, write_report
-from .result import Diagnosis
+from .result import Diagnosis, DiagnosisInputs, Location
 from .stacking import STACK_MIN_LEADER, explained_by_stack, stacked_fit
 
 __all__ = [
     "Budget",
+    "DiagnosisRequest",
     "SetContext",
     "SetJob",
     "build_set",
@@ -391,45 +392,71 @@ def real_ladder(
     return features
 
 
-def run_diagnosis(
-    *,
-    real_dir: str | Path,
-    run: str | Path,
-    out_dir: str | Path,
-    cache_dir: str | Path,
-    mesh_cache: str | Path,
-    budget: Budget,
-    candidates: list[str] | str | None = None,
-    strengths: dict | None = None,
-    data_dir: str | Path | None = None,
-    clip_len: int = 10,
-    clip_stride: int = 10,
-    alpha: float = 0.05,
-    seed: int = 0,
-    sim_seed: int = 0,
-    n_jobs: int = 1,
-    device: str = "auto",
-    name: str | None = None,
-    progress: bool = True,
-) -> Diagnosis:
-    """Diagnose the gap between ``real_dir`` and the data ``run`` was trained on.
+@dataclasses.dataclass(frozen=True)
+class DiagnosisRequest:
+    """What to diagnose and how: R's folder, the trained run, the budget and the caches.
+
+    Checked when made, so a bad request fails before anything is read or written.
+    """
+
+    real_dir: Path
+    """The real footage (``docs/datasets.md`` "Real footage")."""
+    run: str | Path
+    """The trained run whose training data is S."""
+    cache_dir: Path
+    """Content-keyed cache of every set's features (shared between diagnoses)."""
+    mesh_cache: str | Path
+    """Cache of the simulated cloth meshes."""
+    budget: Budget
+    candidates: list[str] | str | None = None
+    """Candidate names, a stage name or ``all`` (:func:`select_candidates`)."""
+    strengths: dict | None = None
+    """Strengths per candidate name, replacing the library's grid."""
+    data_dir: str | Path | None = None
+    """The run's training data folder, when not the one its config names."""
+    clip_len: int = 10
+    clip_stride: int = 10
+    alpha: float = 0.05
+    seed: int = 0
+    sim_seed: int = 0
+    """Draws the simulations of S (another value: another draw of the same scene)."""
+    n_jobs: int = 1
+    device: str = "auto"
+    name: str | None = None
+    """The report's name (default: ``<real_dir name>-<run name>``)."""
+    progress: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "real_dir", Path(self.real_dir))
+        object.__setattr__(self, "cache_dir", Path(self.cache_dir))
+        check_int("n_jobs", self.n_jobs)
+        if not 0 < self.alpha < 1:
+            raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"device must be auto, cpu or cuda, got {self.device!r}")
+
+    @property
+    def report_name(self) -> str:
+        """The report's name."""
+        return self.name or f"{self.real_dir.name}-{Path(self.run).name}"
+
+
+def run_diagnosis(request: DiagnosisRequest, out_dir: str | Path) -> Diagnosis:
+    """Diagnose the gap between ``request.real_dir`` and the data its run was trained on.
 
     Returns the diagnosis (also written as ``out_dir/report.json`` with the Markdown and
     HTML reports and figures). See :mod:`sim2real.diagnosis` for the method.
     """
     timing: dict[str, float] = {}
     start = time.perf_counter()
-    real_dir, out_dir, cache_dir = Path(real_dir), Path(out_dir), Path(cache_dir)
-    check_int("n_jobs", n_jobs)
-    if not 0 < alpha < 1:
-        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
-    if device not in ("auto", "cpu", "cuda"):
-        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    out_dir, budget, r = Path(out_dir), request.budget, request
+    clip_len, clip_stride, alpha, seed = r.clip_len, r.clip_stride, r.alpha, r.seed
+    device = r.device
     if device == "auto":
         import torch
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
-    train_spec, checkpoint = load_run(run, data_dir)
+    train_spec, checkpoint = load_run(r.run, r.data_dir)
     net = _load_net(str(checkpoint), device)  # checks the class count before any work
     if train_spec.camera.width != train_spec.camera.height:
         raise ValueError("the training data's frames are not square; real clips are square crops")
@@ -438,14 +465,14 @@ def run_diagnosis(
         classes=spanning_classes(train_spec.classes, budget.class_grid),
         sims_per_class=budget.sims_per_class,
         clips_per_sim=budget.clips_per_sim,
-        seed_offset=SIM_SEED_OFFSET + SIM_SEED_STEP * check_int("sim_seed", sim_seed, low=0),
+        seed_offset=SIM_SEED_OFFSET + SIM_SEED_STEP * check_int("sim_seed", r.sim_seed, low=0),
     )
     library = candidate_library(spec)
-    chosen = select_candidates(library, candidates)
-    plan = _strength_plan(chosen, strengths or {}, budget.strengths)
+    chosen = select_candidates(library, r.candidates)
+    plan = _strength_plan(chosen, r.strengths or {}, budget.strengths)
     # Real clips first: a bad real folder fails before any simulation.
     real = real_clips(
-        real_dir,
+        r.real_dir,
         size=spec.camera.height,
         clip_len=clip_len,
         clip_stride=clip_stride,
@@ -462,14 +489,14 @@ def run_diagnosis(
     # Nominal S: simulated here (its coverage fixes the cloth box for every domain).
     tick = time.perf_counter()
     use_process_threads(1)
-    nominal_clips = simulated_clips(spec, mesh_cache, clip_len=clip_len, clip_stride=clip_stride)
+    nominal_clips = simulated_clips(spec, r.mesh_cache, clip_len=clip_len, clip_stride=clip_stride)
     box = roi_box(nominal_clips.coverage)
     context = SetContext(
         box=tuple(int(v) for v in box),
         checkpoint=str(checkpoint),
         checkpoint_digest=file_digest(checkpoint),
-        mesh_cache=str(mesh_cache),
-        cache_dir=str(cache_dir),
+        mesh_cache=str(r.mesh_cache),
+        cache_dir=str(r.cache_dir),
         clip_len=clip_len,
         clip_stride=clip_stride,
         device=device,
@@ -479,7 +506,7 @@ def run_diagnosis(
 
     tick = time.perf_counter()
     real_features = real_ladder(
-        real_dir, real, context, fps=spec.preset.fps, max_clips=budget.clips_per_sim
+        r.real_dir, real, context, fps=spec.preset.fps, max_clips=budget.clips_per_sim
     )
     cached_nominal = nominal_path(spec, context)
     if cached_nominal.is_file():
@@ -491,7 +518,7 @@ def run_diagnosis(
 
     # S': the nominal scene under other simulation seeds (the null candidate, and the gap
     # test's second nominal draw).
-    bank = SetBank(context, n_jobs, progress, timing)
+    bank = SetBank(context, r.n_jobs, r.progress, timing)
     bank.build([null_job(spec), *_candidate_jobs(spec, plan)])
 
     tick = time.perf_counter()
@@ -533,62 +560,61 @@ def run_diagnosis(
     swaps = _stage_swaps(spec, library, plan, bank, reference, real, net, budget=budget, seed=seed)
     timing["total"] = time.perf_counter() - start
 
-    name = name or f"{real_dir.name}-{Path(run).name}"
     kernel = functools.partial(  # as the ranking measures the top candidate's
         kernel_closure, rungs=ranking.kernel_rungs, threshold=ranking.threshold
     )
-
-    result = {
-        "name": name,
-        "inputs": {
-            "real_dir": str(real_dir),
-            "run": str(run),
-            "checkpoint": str(checkpoint),
-            "data_dir": None if data_dir is None else str(data_dir),
-            "mesh_cache": str(mesh_cache),
-            "cache_dir": str(cache_dir),
-            "clip_len": clip_len,
-            "clip_stride": clip_stride,
-            "real_videos": real.group_count,
-            "real_clips": len(real),
-            "real_skipped": list(real.skipped),
-            "sim_clips": len(nominal),
-            "sim_groups": len(set(nominal.groups.tolist())),
-            "budget": budget.name,
-            "budget_settings": dataclasses.asdict(budget),
-            "box": list(context.box),
-            "training_spec_key": train_spec.key(),
-            "nominal_spec": spec.to_json(),
-            "alpha": alpha,
-            "seed": seed,
-            "sim_seed": sim_seed,
-            "device": device,
+    draft = Diagnosis(
+        name=r.report_name,
+        inputs=DiagnosisInputs(
+            real_dir=str(r.real_dir),
+            run=str(r.run),
+            checkpoint=str(checkpoint),
+            data_dir=None if r.data_dir is None else str(r.data_dir),
+            mesh_cache=str(r.mesh_cache),
+            cache_dir=str(r.cache_dir),
+            clip_len=clip_len,
+            clip_stride=clip_stride,
+            real_videos=real.group_count,
+            real_clips=len(real),
+            real_skipped=list(real.skipped),
+            sim_clips=len(nominal),
+            sim_groups=len(set(nominal.groups.tolist())),
+            budget=budget.name,
+            budget_settings=dataclasses.asdict(budget),
+            box=list(context.box),
+            training_spec_key=train_spec.key(),
+            nominal_spec=spec.to_json(),
+            alpha=alpha,
+            seed=seed,
+            sim_seed=r.sim_seed,
+            device=device,
+        ),
+        rungs={n: g.to_json() for n, g in gaps.items()},
+        detection_rungs={n: g.to_json() for n, g in detection.items()},
+        location=Location.from_json(location),
+        scored_rungs=reference.rungs,
+        reference_auc=reference.before.auc,
+        reference_classifier=reference.before.to_json(),
+        candidates={
+            c.name: {**c.to_json(), "best": c.best, "kernel_closure": kernel(c)} for c in results
         },
-        "rungs": {n: g.to_json() for n, g in gaps.items()},
-        "detection_rungs": {n: g.to_json() for n, g in detection.items()},
-        "location": location,
-        "scored_rungs": reference.rungs,
-        "reference_auc": reference.before.auc,
-        "reference_classifier": reference.before.to_json(),
-        "candidates": {
-            r.name: {**r.to_json(), "best": r.best, "kernel_closure": kernel(r)} for r in results
-        },
-        "null": {**null.to_json(), "kernel_closure": kernel(null)},
-        "ranking": ranking.to_json(),
-        "residual": decision.residual,
-        "shapley": decision.shapley,
-        "stacked": decision.stacked,
-        "joint": None if joint is None else joint.to_json(),
-        "counterfactuals": swaps,
-        "residual_stage": stage_of_residual(
+        null={**null.to_json(), "kernel_closure": kernel(null)},
+        ranking=ranking,
+        residual=decision.residual,
+        shapley=decision.shapley,
+        stacked=decision.stacked,
+        joint=joint,
+        counterfactuals=swaps,
+        residual_stage=stage_of_residual(
             location, ranking.stage_scores, {n: g.corrected_auc for n, g in gaps.items()}
         ),
-        "detectability": detectability,
-        "probes": probes,
-        "sets": bank.counts(),
-        "timing": timing,
-    }
-    diagnosis = Diagnosis.from_json(json_safe(result))
+        detectability=detectability,
+        probes=probes,
+        sets=bank.counts(),
+        timing=timing,
+    )
+    # plain JSON values throughout (numpy scalars to numbers), as a stored report reads back
+    diagnosis = Diagnosis.from_json(json_safe(draft.to_json()))
     sheet_rows = {"S (nominal simulation)": nominal_clips.frames[0]}
     sheet_rows.update({f"R: {real.groups[i]}": real.frames[i] for i in _spread(len(real), 3)})
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,7 @@ rankings' Kendall tau, overall and per kind of set.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import time
@@ -41,7 +42,7 @@ from common.paths import check_output_dir
 from ..candidates import candidate_library
 from ..detectability import detectable_at
 from ..diagnosis import OPEN_SET_MIN_CLOSURE
-from ..pipeline import Budget, load_run, run_diagnosis
+from ..pipeline import Budget, DiagnosisRequest, load_run, run_diagnosis
 from ..report import read_report
 from ..result import Diagnosis
 from .multi import score_multi, truth_attribution
@@ -452,14 +453,14 @@ def load_budget(name: str) -> Budget:
     return instantiate(OmegaConf.load(BUDGETS / f"{name}.yaml"))
 
 
-def _diagnosed(out_dir: Path, common: dict) -> Diagnosis:
+def _diagnosed(out_dir: Path, request: DiagnosisRequest) -> Diagnosis:
     """The diagnosis of one sealed set: its finished report, else a fresh run.
 
     Reports are written last and whole, so a killed validation resumes set by set.
     """
     if (out_dir / "report.json").is_file():
         return read_report(out_dir, "reports")
-    return run_diagnosis(out_dir=out_dir, **common)
+    return run_diagnosis(request, out_dir)
 
 
 @report_user_errors
@@ -599,25 +600,25 @@ def main(argv: list[str] | None = None) -> None:
                 overwrite=True,
                 answer=answer,
             )
-        common = {
-            "real_dir": real,
-            "run": args.run,
-            "data_dir": args.data_dir,
-            "cache_dir": Path(args.cache_dir) if args.cache_dir else out / "cache",
-            "mesh_cache": args.mesh_cache,
-            "budget": budget,
-            "candidates": args.candidates.split(","),
-            "n_jobs": args.n_jobs,
-            "progress": False,
-        }
-        result = _diagnosed(out / "reports" / real.name, common)
+        request = DiagnosisRequest(
+            real_dir=real,
+            run=args.run,
+            data_dir=args.data_dir,
+            cache_dir=Path(args.cache_dir) if args.cache_dir else out / "cache",
+            mesh_cache=args.mesh_cache,
+            budget=budget,
+            candidates=args.candidates.split(","),
+            n_jobs=args.n_jobs,
+            progress=False,
+        )
+        result = _diagnosed(out / "reports" / real.name, request)
         reruns = [result]
         if seed in rerun:
             for sim_seed in (1, 2):
                 folder = out / "reports" / f"{real.name}-sim{sim_seed}"
                 if args.finished_only and not (folder / "report.json").is_file():
                     continue
-                reruns.append(_diagnosed(folder, {**common, "sim_seed": sim_seed}))
+                reruns.append(_diagnosed(folder, dataclasses.replace(request, sim_seed=sim_seed)))
         if args.rescore:
             result = decided_again(result, min_closure=args.open_set_threshold)
         answer = json.loads(answer_path.read_text())  # opened only after the diagnosis

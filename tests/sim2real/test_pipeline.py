@@ -21,7 +21,7 @@ from models.material_classifier import MaterialClassifierModule
 from render.camera import CameraSpec
 from sim2real.candidates import candidate_library
 from sim2real.diagnosis import CandidateResult, rank_candidates
-from sim2real.pipeline import Budget, run_diagnosis
+from sim2real.pipeline import Budget, DiagnosisRequest, run_diagnosis
 from sim2real.result import Diagnosis
 from sim2real.study.rescore import decide_again
 from sim2real.study.seal import draw_answer, seal_set
@@ -108,7 +108,6 @@ def _diagnose(world, out, candidates=CANDIDATES, **changes):
         "real_dir": root / "real",
         "run": root / "run",
         "data_dir": root / "data",
-        "out_dir": out,
         "cache_dir": root / "cache",
         "mesh_cache": root / "meshes",
         "budget": BUDGET,
@@ -118,7 +117,7 @@ def _diagnose(world, out, candidates=CANDIDATES, **changes):
         "progress": False,
     }
     kwargs.update(changes)
-    return run_diagnosis(**kwargs)
+    return run_diagnosis(DiagnosisRequest(**kwargs), out)
 
 
 def test_sealed_set_holds_only_what_real_footage_has(world):
