@@ -30,6 +30,8 @@ from enum import StrEnum
 import cv2
 import numpy as np
 
+from common.effect_fields import strength
+
 __all__ = [
     "DETERMINISTIC_EFFECTS",
     "EFFECT_NAMES",
@@ -70,28 +72,6 @@ def _switch(stage: str):
     return dataclasses.field(default=False, metadata={"stage": stage})
 
 
-def _strength(
-    default: float,
-    of: str,
-    low: float,
-    high: float,
-    *,
-    integer: bool = False,
-    neutral: float | None = None,
-):
-    """A field that is the strength of switch ``of``, plausible in [low, high].
-
-    Same metadata as :func:`simulator.cloth.effects.strength` (not imported: it would pull torch
-    into ``render``); the sim-to-real diagnosis fits the strength within this range.
-    ``neutral``: the strength at which the switch changes nothing, when it is not below the
-    range (a frame-rate ratio of 1, a JPEG quality of 100, the matte roughness 1).
-    """
-    meta = {"strength_of": of, "plausible": (low, high), "integer": integer}
-    if neutral is not None:
-        meta["neutral"] = neutral
-    return dataclasses.field(default=default, metadata=meta)
-
-
 @dataclasses.dataclass(frozen=True)
 class VisualEffects:
     """Switches (and parameters) of the visual effects; all off by default.
@@ -130,22 +110,22 @@ class VisualEffects:
 
     motion_blur_samples: int = 4
     """Sub-frame renders per frame (>= 2)."""
-    motion_blur_shutter: float = _strength(0.5, "motion_blur", 0.1, 1.0)
+    motion_blur_shutter: float = strength(0.5, "motion_blur", 0.1, 1.0)
     """Fraction of the frame interval the shutter is open, in (0, 1]; the exposure ends at
     the frame's time (positions are interpolated linearly from the previous frame)."""
-    noise_read_sigma: float = _strength(2.0, "sensor_noise", 0.5, 8.0)
+    noise_read_sigma: float = strength(2.0, "sensor_noise", 0.5, 8.0)
     """Signal-independent noise std [8-bit levels]."""
     noise_shot_gain: float = 0.15
     """Signal-dependent (shot) noise variance per level [8-bit levels]."""
-    jpeg_quality: int = _strength(50, "compression", 10, 90, integer=True, neutral=100)
+    jpeg_quality: int = strength(50, "compression", 10, 90, integer=True, neutral=100)
     """JPEG quality, 1 (worst) to 100."""
     light_direction_jitter_deg: float = 25.0
     """Largest change of the key light's direction [deg]."""
-    light_intensity_jitter: float = _strength(0.3, "lighting_variation", 0.05, 0.6)
+    light_intensity_jitter: float = strength(0.3, "lighting_variation", 0.05, 0.6)
     """Key and ambient intensities scale by factors drawn in 1 ± this, in [0, 1)."""
-    specular_roughness: float = _strength(0.35, "specular", 0.1, 0.8, neutral=1.0)
+    specular_roughness: float = strength(0.35, "specular", 0.1, 0.8, neutral=1.0)
     """PBR roughness of the glossy cloth, in [0.04, 1]."""
-    shake_translation: float = _strength(0.004, "camera_shake", 0.001, 0.012)
+    shake_translation: float = strength(0.004, "camera_shake", 0.001, 0.012)
     """Camera shake translation amplitude (std per axis) [m]."""
     shake_rotation_deg: float = 0.4
     """Camera shake rotation amplitude (std per axis) [deg]."""
@@ -153,17 +133,17 @@ class VisualEffects:
     """Typical period of the shake [frames]; the motion mixes periods of 1x, 1/2x and 1/3x."""
     defocus_radius_min_px: float = 0.5
     """Smallest blur-disc radius [px] (output pixels)."""
-    defocus_radius_max_px: float = _strength(1.5, "defocus_blur", 0.75, 3.0)
+    defocus_radius_max_px: float = strength(1.5, "defocus_blur", 0.75, 3.0)
     """Largest blur-disc radius [px]."""
-    white_balance_shift: float = _strength(0.12, "white_balance", 0.03, 0.3)
+    white_balance_shift: float = strength(0.12, "white_balance", 0.03, 0.3)
     """Largest relative change of one channel's gain, in [0, 1)."""
-    frame_rate_ratio: float = _strength(0.5, "frame_rate", 0.5, 2.0, neutral=1.0)
+    frame_rate_ratio: float = strength(0.5, "frame_rate", 0.5, 2.0, neutral=1.0)
     """Output frame rate / input frame rate (> 0); the clip keeps its duration."""
     frame_rate_mode: FrameRateMode = FrameRateMode.BLEND
     """``blend`` or ``drop`` (see :class:`FrameRateMode`)."""
-    vignetting_strength: float = _strength(0.3, "vignetting", 0.05, 0.6)
+    vignetting_strength: float = strength(0.3, "vignetting", 0.05, 0.6)
     """Relative darkening at the frame's corners (gain ``1 - s r²``, r = 1 at a corner)."""
-    rolling_shutter_readout: float = _strength(0.6, "rolling_shutter", 0.2, 1.0)
+    rolling_shutter_readout: float = strength(0.6, "rolling_shutter", 0.2, 1.0)
     """Readout time from the top row to the bottom row, as a fraction of the frame interval
     (phone and consumer CMOS sensors: about 0.3-1 at 30 frames/s)."""
     rolling_shutter_bands: int = 8

@@ -9,32 +9,9 @@ from __future__ import annotations
 import dataclasses
 
 from common.configs import switches_from_dict
+from common.effect_fields import strength
 
 __all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength"]
-
-
-def strength(
-    default: float,
-    of: str,
-    low: float,
-    high: float,
-    *,
-    integer: bool = False,
-    neutral: float | None = None,
-):
-    """A dataclass field that is the strength of switch ``of``, plausible in [low, high].
-
-    The metadata is what makes every switch of a registry a candidate of the sim-to-real
-    diagnosis (:mod:`sim2real.candidates`) with no change there: the diagnosis flips the
-    switch and fits this parameter within its plausible range (narrower than the validity
-    range the dataclass checks). A switch with no strength field is a binary candidate.
-    ``neutral``: the strength at which the switch changes nothing, when it is not below the
-    range.
-    """
-    meta = {"strength_of": of, "plausible": (low, high), "integer": integer}
-    if neutral is not None:
-        meta["neutral"] = neutral
-    return dataclasses.field(default=default, metadata=meta)
 
 
 @dataclasses.dataclass(frozen=True)
