@@ -66,13 +66,13 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from apps.recording import check_app_fields
+from apps.recording import check_app_fields, render_shown
 from common.checks import check_choice, check_device, check_float, check_int
 from common.commands import hydra_command
 from common.errors import InputError
 from common.paths import check_output_dir
 from datasets.generate import spec_from_config
-from datasets.generation import render_frames, simulate_unit
+from datasets.generation import simulate_unit
 from datasets.manifest import write_json
 from datasets.plan import WorkUnit, plan_units
 from datasets.preview import (
@@ -135,8 +135,6 @@ COMPARISON_RULE = comparison_rule()
 """How :func:`comparison_classes` chooses in the thesis's 6 x 9 grid; ``prediction.json``
 holds the rule of the run's own material set."""
 TOP_COUNT = 5
-_RENDER_STREAM = 4
-"""Random stream of the renderer's effects (``[seed, stream]``), as in :mod:`apps.demo`."""
 _GAP = 4  # px of white between the video's tiles
 _ACCENT = (255, 170, 0)  # RGB outline of the predicted class's label
 _NAME_CHARS = 20  # characters of the video's name that fit a label line
@@ -566,23 +564,10 @@ def run(cfg: DictConfig) -> CloneOutputs:
     seq.meta["clone"] = {"video": str(clips.video.path), "checkpoint": str(trained.checkpoint)}
     simulated = time.perf_counter()
 
-    capsules = seq.capsules
-    rendered = []
-    for b, sim in enumerate(unit.sims):
-        if checked["target"] == "skirt":
-            rendered.append(skirt_frames[b, first:stop])
-            continue
-        frames, _ = render_frames(
-            spec,
-            seq,
-            b,
-            sim,
-            first,
-            stop,
-            capsules=capsules,
-            rng=np.random.default_rng([sim.seed, _RENDER_STREAM]),
-        )
-        rendered.append(frames)
+    if checked["target"] == "skirt":
+        rendered = [skirt_frames[b, first:stop] for b in range(len(unit.sims))]
+    else:
+        rendered = render_shown(spec, seq, unit)
     fps = spec.preset.fps
     shown = stop - first
     source = display_frames(clips, shown, fps, spec.camera.height)

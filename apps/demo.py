@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from apps.recording import check_app_fields
+from apps.recording import check_app_fields, render_shown
 from common.checks import check_int
 from common.commands import hydra_command
 from common.paths import check_output_dir
 from datasets.generate import spec_from_config
-from datasets.generation import render_frames, simulate_unit
+from datasets.generation import simulate_unit
 from datasets.plan import WorkUnit, plan_units
 from datasets.preview import (
     class_lines,
@@ -54,8 +54,6 @@ from simulator.threads import use_process_threads
 
 __all__ = ["VIDEO_COLUMNS", "DemoOutputs", "class_sheet", "class_video", "run"]
 
-_RENDER_STREAM = 4
-"""Random stream of the renderer's effects (``[seed, stream]``); off by default."""
 _GAP = 4  # px of white between the video's tiles
 VIDEO_COLUMNS = 9
 """Most tiles in one row of the video (all 54 classes: 6 rows of 9, as the class grid)."""
@@ -107,23 +105,9 @@ def run(cfg: DictConfig) -> DemoOutputs:
     sequence_path = seq.save(out_dir / "sequence.npz")
     simulated = time.perf_counter()
 
-    capsules = seq.capsules
     first, stop = spec.lead_in_frames, spec.frames_per_sim
-    clips = []
     with _progress("render", "frame") as on_frames:
-        for b, sim in enumerate(unit.sims):
-            frames, _ = render_frames(
-                spec,
-                seq,
-                b,
-                sim,
-                first,
-                stop,
-                capsules=capsules,
-                rng=np.random.default_rng([sim.seed, _RENDER_STREAM]),
-            )
-            clips.append(frames)
-            on_frames(len(frames) * (b + 1), len(frames) * len(unit.sims))
+        clips = render_shown(spec, seq, unit, on_frames)
 
     fps = spec.preset.fps
     video_path = out_dir / "classes.mp4"

@@ -8,14 +8,22 @@ seconds at ``fps`` and show what follows the ``lead_in`` (while the wind or the 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
+
+import numpy as np
 
 from common.checks import check_float, check_int, check_threads
 from common.configs import config_errors
 from common.errors import InputError
+from datasets.generation import render_frames
+from datasets.plan import WorkUnit
 from datasets.spec import DatasetSpec, SizePreset
 from simulator.cloth.rollout import check_recording_memory
 
-__all__ = ["Recording", "check_app_fields"]
+__all__ = ["Recording", "check_app_fields", "render_shown"]
+
+RENDER_STREAM = 4
+"""Random stream of a rollout's render (camera noise, light jitter), after its seed."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,3 +90,33 @@ def check_app_fields(cfg) -> tuple[int, Recording, int]:
         threads = check_threads(cfg.threads, "threads")
     recording = Recording.from_config(cfg)
     return threads, recording, check_int(cfg.sheet_frames, "sheet_frames", 1)
+
+
+def render_shown(
+    spec: DatasetSpec,
+    seq,
+    unit: WorkUnit,
+    on_frames: Callable[[int, int], None] | None = None,
+) -> list[np.ndarray]:
+    """Each rollout of ``unit``'s shown frames (after the lead-in), rendered as ``spec`` says.
+
+    ``seq`` is the unit's simulated :class:`~simulator.cloth.rollout.MeshSequence`;
+    ``on_frames(done, total)`` is told the frames rendered so far.
+    """
+    first, stop = spec.lead_in_frames, spec.frames_per_sim
+    clips = []
+    for b, sim in enumerate(unit.sims):
+        frames, _ = render_frames(
+            spec,
+            seq,
+            b,
+            sim,
+            first,
+            stop,
+            capsules=seq.capsules,
+            rng=np.random.default_rng([sim.seed, RENDER_STREAM]),
+        )
+        clips.append(frames)
+        if on_frames is not None:
+            on_frames(len(frames) * (b + 1), len(frames) * len(unit.sims))
+    return clips
