@@ -578,18 +578,8 @@ def _shrink_section(shrink: dict | None) -> list[str]:
         for name, r in shrink["rungs"].items()
     ]
     return [
-        f"Training set regenerated with {effects} (preset `{shrink['preset']}`), model "
-        f"fine-tuned for {shrink['epochs']} epochs from the run's weights"
-        + (
-            ""
-            if shrink.get("lr_scale") is None
-            else f" at {shrink['lr_scale']:g} of its training rate"
-        )
-        + (
-            "; as a control, fine-tuned as long from the same weights on the nominal data."
-            if shrink.get("control")
-            else "."
-        )
+        f"Training set regenerated with {effects} (preset `{shrink['preset']}`), "
+        + _retrain_words(shrink)
         + (
             ""
             if shrink.get("closure_predicted_total") is None
@@ -613,8 +603,28 @@ def _shrink_section(shrink: dict | None) -> list[str]:
     ]
 
 
-_RUN_NAMES = {"before": "before", "after": "after", "control": "nominal fine-tune"}
+_RUN_NAMES = {"before": "before", "after": "after", "control": "nominal control"}
 """Column names of the shrink section's runs: the model, retrained, and the control."""
+
+
+def _retrain_words(shrink: dict) -> str:
+    """How the model after was trained, and its control, as a clause of the section's lead."""
+    control = shrink.get("control")
+    if shrink.get("init") == "scratch":
+        words = f"a fresh model trained for {shrink['epochs']} epochs with the run's recipe"
+        if control and control.get("is_the_run"):
+            return words + "; its control is the run itself (trained as long on the nominal data)."
+        if control:
+            return words + "; as a control, one trained as long afresh on the nominal data."
+        return words + "."
+    words = f"model fine-tuned for {shrink['epochs']} epochs from the run's weights"
+    if shrink.get("lr_scale") is not None:
+        words += f" at {shrink['lr_scale']:g} of its training rate"
+    if control:
+        return (
+            words + "; as a control, fine-tuned as long from the same weights on the nominal data."
+        )
+    return words + "."
 
 
 def _score_correlation_lines(correlations: dict | None) -> list[str]:
@@ -647,7 +657,7 @@ def _score_correlation_lines(correlations: dict | None) -> list[str]:
                 rows.append(row)
     header = ["videos", "score", "measured", "before", "95 % CI", "after", "95 % CI", "change"]
     if control is not None:
-        header += ["nominal fine-tune", "95 % CI", "after − nominal"]
+        header += ["nominal control", "95 % CI", "after − nominal"]
     return [
         "",
         "Every score against every measured column (Pearson r; 95 % intervals from a bootstrap "

@@ -40,7 +40,10 @@ from .predictivity import predictivity
 from .report import json_safe, read_report, write_report
 from .result import Diagnosis
 
-__all__ = ["chosen_effects", "shrink"]
+__all__ = ["INITS", "chosen_effects", "shrink"]
+
+INITS = ("weights", "scratch")
+"""How the model after starts: the run's weights (fine-tuned) or a fresh initialisation."""
 
 
 def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple[str, object]]:
@@ -96,9 +99,11 @@ def _run_config(run: Path):
 
 
 def _fine_tune(
-    cfg, data_dir: Path, checkpoint: Path, out: Path, epochs: int, lr_scale: float
+    cfg, data_dir: Path, checkpoint: Path | None, out: Path, epochs: int, lr_scale: float
 ) -> Path:
-    """Fine-tune the run's model on ``data_dir`` from ``checkpoint`` at ``lr_scale`` of its rate.
+    """Train the run's model on ``data_dir`` from ``checkpoint``, or afresh without one.
+
+    From a checkpoint at ``lr_scale`` of the run's rate; afresh at its own rate and recipe.
 
     At the training rate a fresh optimizer undoes a converged model (measured: held-out
     accuracy 0.46 -> 0.14 in the first epoch on the run's own data).
@@ -114,9 +119,9 @@ def _fine_tune(
         "paths.output_dir": str(out),
         "paths.log_dir": str(out.parent),
         "paths.work_dir": str(out),
-        "init_from": str(checkpoint),
+        "init_from": None if checkpoint is None else str(checkpoint),
         "trainer.max_epochs": epochs,
-        "model.optimizer.lr": float(lr) * lr_scale,
+        "model.optimizer.lr": float(lr) * (1.0 if checkpoint is None else lr_scale),
         "test": False,
         "ckpt_path": "auto",
     }.items():
@@ -177,17 +182,22 @@ def shrink(
     group: str | None = None,
     control: bool = False,
     lr_scale: float = 0.1,
+    init: str = "weights",
 ) -> dict:
     """Retrain with the identified effect and measure the gap and correlations after.
 
     ``columns``: the measured ``labels.csv`` columns each score is correlated with (the
     first two, as in the thesis's Table 7.3, lead the report); ``group``: the column whose
-    equal values form one fabric for the grouped intervals; ``control``: also fine-tune as
+    equal values form one fabric for the grouped intervals; ``control``: also train as
     long on the nominal data (the run's own training data at ``preset="same"``) and evaluate it;
-    ``lr_scale``: the fine-tuning rate as a fraction of the run's training rate.
+    ``lr_scale``: the fine-tuning rate as a fraction of the run's training rate; ``init``:
+    ``weights`` fine-tunes the run's model, ``scratch`` trains a fresh one with the run's
+    recipe (its control is the run itself when it was trained as long on the same data).
 
     Returns the section-3 dict (also stored in ``report.json`` and the rewritten reports).
     """
+    from omegaconf import OmegaConf
+
     from datasets.generation import generate_dataset
     from models.material_classifier import load_classifier
 
@@ -205,9 +215,20 @@ def shrink(
     retrain_spec = _apply(dataclasses.replace(train_spec, preset=size), chosen)
     out = report_dir / "shrink"
     data = out / "data"
+    if init not in INITS:
+        raise ValueError(f"init must be one of {', '.join(INITS)}, got {init!r}")
+    start = checkpoint if init == "weights" else None
+    # a run trained from scratch as long on the same data is the scratch retrain's control
+    run_is_control = (
+        init == "scratch"
+        and size == train_spec.preset
+        and OmegaConf.select(run_config, "trainer.max_epochs") == epochs
+    )
     generate_dataset(retrain_spec, data, n_jobs=n_jobs, mesh_cache=inputs.mesh_cache)
-    after_ckpt = _fine_tune(run_config, data, checkpoint, out / "train", epochs, lr_scale)
-    if control:
+    after_ckpt = _fine_tune(run_config, data, start, out / "train", epochs, lr_scale)
+    if control and run_is_control:
+        nominal_data, control_ckpt = trained.data_dir, checkpoint
+    elif control:
         nominal_data = trained.data_dir
         if size != train_spec.preset:
             nominal_data = out / "control_data"
@@ -218,7 +239,7 @@ def shrink(
                 mesh_cache=inputs.mesh_cache,
             )
         control_ckpt = _fine_tune(
-            _run_config(run), nominal_data, checkpoint, out / "control_train", epochs, lr_scale
+            _run_config(run), nominal_data, start, out / "control_train", epochs, lr_scale
         )
 
     clip_len, clip_stride = inputs.clip_len, inputs.clip_stride
@@ -328,13 +349,20 @@ def shrink(
         "effects": [{"name": n, "strength": s} for n, s in chosen],
         "preset": preset,
         "epochs": epochs,
-        "lr_scale": lr_scale,
+        "init": init,
+        "lr_scale": lr_scale if init == "weights" else 1.0,
         "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
         "correlations": {k: v["correlations"]["all"] for k, v in evaluated.items()},
         "score_correlations": {k: v["score_correlations"] for k, v in evaluated.items()},
         "control": (
-            {"data": str(nominal_data), "checkpoint": str(control_ckpt)} if control else None
+            {
+                "data": str(nominal_data),
+                "checkpoint": str(control_ckpt),
+                "is_the_run": run_is_control,
+            }
+            if control
+            else None
         ),
         "rungs": rungs,
         "predictivity": srcc,
@@ -372,6 +400,7 @@ def run(cfg) -> dict:
     lr_scale = cfg.lr_scale
     if isinstance(lr_scale, bool) or not isinstance(lr_scale, int | float) or not 0 < lr_scale <= 1:
         raise InputError(f"lr_scale must be a number in (0, 1], got {lr_scale!r}")
+    init = check_choice(cfg.init, "init", INITS)
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
         return shrink(
@@ -384,6 +413,7 @@ def run(cfg) -> dict:
             group=cfg.group,
             control=cfg.control,
             lr_scale=float(lr_scale),
+            init=init,
         )
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None

@@ -488,7 +488,7 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     assert "## 3. How far it shrinks" in text and "fine-tuned for 2 epochs" in text
     assert section["lr_scale"] == 0.1 and "at 0.1 of its training rate" in text
     assert "| pooled | bend_score | stiffness |" in text  # every score against every column
-    assert "nominal fine-tune" in text and "after − nominal" in text
+    assert "nominal control" in text and "after − nominal" in text
     assert "SRCC" in text
     assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2
 

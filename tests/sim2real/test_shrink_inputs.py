@@ -16,6 +16,7 @@ import pytest
         ("control=maybe", "control"),
         ("lr_scale=0", "lr_scale"),
         ("lr_scale=2", "lr_scale"),
+        ("init=random", "init"),
     ],
 )
 def test_shrink_names_a_bad_field(tmp_path, override, field):
@@ -28,3 +29,33 @@ def test_shrink_names_a_bad_field(tmp_path, override, field):
     assert done.returncode != 0
     assert done.stderr.strip().splitlines()[-1].startswith(f"error: {field} must be")
     assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("shrink", "words"),
+    [
+        (
+            {"epochs": 8, "lr_scale": 0.1, "control": {"is_the_run": False}},
+            "model fine-tuned for 8 epochs from the run's weights at 0.1 of its training rate; "
+            "as a control, fine-tuned as long from the same weights on the nominal data.",
+        ),
+        (
+            {"epochs": 20, "init": "scratch", "lr_scale": 1.0, "control": {"is_the_run": True}},
+            "a fresh model trained for 20 epochs with the run's recipe; its control is the run "
+            "itself (trained as long on the nominal data).",
+        ),
+        (
+            {"epochs": 5, "init": "scratch", "lr_scale": 1.0, "control": {"is_the_run": False}},
+            "a fresh model trained for 5 epochs with the run's recipe; as a control, one trained "
+            "as long afresh on the nominal data.",
+        ),
+        (
+            {"epochs": 5, "init": "scratch", "control": None},
+            "a fresh model trained for 5 epochs with the run's recipe.",
+        ),
+    ],
+)
+def test_the_report_says_how_the_model_after_was_trained(shrink, words):
+    from sim2real.report import _retrain_words
+
+    assert _retrain_words(shrink) == words
