@@ -4,7 +4,7 @@
 [control=true]`` reads a diagnosis (``report.json``), regenerates the training data of its run
 with every factor of the calibrated simulator S* (or, without a joint fit, the named effect) at
 its fitted strength (``datasets.generation``, same scene, seeds and settings;
-``effects=name=strength,...`` overrides the choice), fine-tunes the run's model on it from its
+``use_effects=name=strength,...`` overrides the choice), fine-tunes the run's model on it from its
 weights (``models.training.train`` with the run's own config, ``init_from`` = its checkpoint),
 and, with ``control``, fine-tunes it as long on the nominal data too (so that what the extra
 training alone changes is told from what the calibrated simulator changes), and reports on the
@@ -63,7 +63,8 @@ def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple
     ranking = result.ranking
     if not ranking.explained:
         raise ValueError(
-            "the diagnosis named no effect (unexplained residual); pass --effects name=strength"
+            "the diagnosis named no effect (unexplained residual); "
+            "pass use_effects=name=strength,..."
         )
     top = result.candidates[ranking.top]
     return [(ranking.top, top["best_strength"])]
@@ -81,7 +82,7 @@ def _apply(spec: DatasetSpec, effects: list[tuple[str, object]]) -> DatasetSpec:
     library = candidate_library(spec)
     for name, strength in effects:
         if name not in library:
-            raise ValueError(f"effects: unknown {name!r}; allowed: {sorted(library)}")
+            raise ValueError(f"use_effects: unknown {name!r}; allowed: {sorted(library)}")
         spec = library[name].apply(spec, strength)
     return spec
 
@@ -384,9 +385,9 @@ def run(cfg) -> dict:
     epochs = check_int(cfg.epochs, "epochs", 1)
     n_jobs = check_int(cfg.n_jobs, "n_jobs", 1)
     check_choice(cfg.data_preset, "data_preset", ["same", *sorted(PRESETS)])
-    effects = cfg.effects
+    effects = cfg.use_effects
     if effects is not None and (not isinstance(effects, str) or not effects.strip()):
-        raise InputError(f"effects must be name=strength,... or null, got {effects!r}")
+        raise InputError(f"use_effects must be name=strength,... or null, got {effects!r}")
     columns = cfg.columns
     if (
         not OmegaConf.is_list(columns)

@@ -17,6 +17,7 @@ import pytest
         ("lr_scale=0", "lr_scale"),
         ("lr_scale=2", "lr_scale"),
         ("init=random", "init"),
+        ("use_effects=[a]", "use_effects"),
     ],
 )
 def test_shrink_names_a_bad_field(tmp_path, override, field):
@@ -29,6 +30,25 @@ def test_shrink_names_a_bad_field(tmp_path, override, field):
     assert done.returncode != 0
     assert done.stderr.strip().splitlines()[-1].startswith(f"error: {field} must be")
     assert "Traceback" not in done.stderr
+
+
+def test_the_documented_effects_override_reaches_the_command(tmp_path):
+    """``use_effects`` is a plain key (``effects`` would collide with the config group)."""
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sim2real.shrink",
+            f"report={tmp_path}",
+            'use_effects="visual.sensor_noise=3.0,physics.air_damping=0.05"',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: report") and "Traceback" not in done.stderr, done.stderr
 
 
 @pytest.mark.parametrize(
