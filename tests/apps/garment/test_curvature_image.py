@@ -130,7 +130,7 @@ def test_light_estimate_finds_the_key_direction():
         est = estimate_light(image, person, fit, camera)
         truth = np.asarray(light.direction)
         angle = math.degrees(math.acos(np.clip(est.direction @ truth, -1, 1)))
-        assert angle < 15.0, (name, angle)
+        assert angle < 5.0, (name, angle)
 
 
 def test_region_map_follows_the_nearest_primitive():
