@@ -337,7 +337,7 @@ def markdown_table(report: dict) -> str:
         for g, m in row["garments"].items():
             col = thesis_column(row["scene"], g)
             lines.append(
-                f"| {row['scene']} | {g} | {pct(m['sizing_accuracy']) if g != 'skirt' else '-'} "
+                f"| {row['scene']} | {g} | {pct(m['sizing_accuracy'])} "
                 f"| {thesis('sizing', g, col)} | {pct(m['material_accuracy'])} "
                 f"| {thesis('material', g, col)} | {pct(m['curvature_accuracy'])} "
                 f"| {thesis('curvature', g, col)} | {m['minutes']:.1f} |"
