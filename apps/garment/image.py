@@ -53,7 +53,11 @@ def mesh_mask(pixels: np.ndarray, tri: np.ndarray, shape: tuple[int, int]) -> np
 
     mask = np.zeros(shape, np.uint8)
     pts = np.round(pixels[tri] * 16).astype(np.int32)  # 4 fractional bits
-    cv2.fillPoly(mask, list(pts), 1, lineType=cv2.LINE_8, shift=4)
+    # One triangle at a time: ``fillPoly`` over many contours fills by parity, so where two
+    # layers of a garment overlap (front and back panels) and along shared edges it leaves
+    # holes instead of the union.
+    for p in pts:
+        cv2.fillConvexPoly(mask, p, 1, lineType=cv2.LINE_8, shift=4)
     return mask.astype(bool)
 
 

@@ -277,11 +277,9 @@ def print_tables(rows: list[dict]) -> None:
         f"{'scene':22s} {'garment':7s} {'G ours':>7s} {'G thesis':>8s} {'C ours':>7s} "
         f"{'C thesis':>8s} {'K ours':>7s} {'K thesis':>8s} {'min':>5s}"
     )
-    idx = {"tshirt": 0, "pants": 0, "skirt": 0}
     for r in rows:
         for g, m in r["garments"].items():
-            i = idx[g]
-            idx[g] += 1
+            col = thesis_column(r["scene"], g)
             th_g = THESIS["sizing"].get(g, [None] * 6)
             th_c = THESIS["material"][g]
             th_k = THESIS["curvature"].get(g, [None] * 6)
@@ -289,8 +287,8 @@ def print_tables(rows: list[dict]) -> None:
             def pct(v):
                 return f"{100 * v:7.1f}"
 
-            def th(v, i=i):
-                return f"{v[i]:8.1f}" if i < len(v) and v[i] is not None else f"{'-':>8s}"
+            def th(v, i=col):
+                return f"{v[i]:8.1f}" if i is not None and v[i] is not None else f"{'-':>8s}"
 
             k = pct(m["curvature_accuracy"]) if g == "skirt" else f"{'-':>7s}"
             print(
@@ -302,6 +300,76 @@ def print_tables(rows: list[dict]) -> None:
     for j in JOINTS:
         cells = [f"{r['joint_err_deg'][j]:8.1f}{'*' if r['occluded'][j] else ' '}" for r in rows]
         print(f"{j:12s} " + " ".join(cells))
+
+
+DOCS_PAGE = Path("docs/garment.md")
+TABLE_START = "<!-- garment tables: python -m benchmarks.thesis.garment_tables --table -->"
+TABLE_END = "<!-- end of garment tables -->"
+
+
+def thesis_column(scene: str, garment: str) -> int | None:
+    """Column of ``scene`` in the *thesis*'s table for ``garment`` (None: not in the tables)."""
+    names = [s.name for s in SCENES if any(g.garment == garment for g in s.garments)]
+    return names.index(scene) if scene in names else None
+
+
+def markdown_table(report: dict) -> str:
+    """Markdown tables of a results file (``docs/results/garment_tables.json``).
+
+    Per scene and garment: sizing, material and curvature accuracy [%] beside the *thesis*'s
+    Tables 6.1-6.2, and the minutes per garment; then the summary against the targets, with
+    the largest joint-angle error over the joints not occluded (*thesis* Table 6.3).
+    """
+
+    def pct(v):
+        return f"{100 * v:.1f}" if v is not None else "-"
+
+    def thesis(kind, garment, col):
+        values = report["thesis"][kind].get(garment)
+        return f"{values[col]:.1f}" if values is not None and col is not None else "-"
+
+    lines = [
+        "| scene | garment | sizing G | *thesis* | material C | *thesis* | curvature K "
+        "| *thesis* | min |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        for g, m in row["garments"].items():
+            col = thesis_column(row["scene"], g)
+            lines.append(
+                f"| {row['scene']} | {g} | {pct(m['sizing_accuracy'])} "
+                f"| {thesis('sizing', g, col)} | {pct(m['material_accuracy'])} "
+                f"| {thesis('material', g, col)} | {pct(m['curvature_accuracy'])} "
+                f"| {thesis('curvature', g, col)} | {m['minutes']:.1f} |"
+            )
+    targets = report["targets"]
+    joints = report["joint_angle_err_max_deg"]
+
+    def verdict(ok):
+        return "met" if ok else "**missed**"
+
+    lines += [
+        "",
+        "| summary (over the scenes run) | ours | target | *thesis* |",
+        "|---|---|---|---|",
+        f"| sizing accuracy, lowest | {pct(report['sizing_accuracy_min'])} % "
+        f"| >= {pct(targets['sizing'])} % "
+        f"({verdict(report['sizing_accuracy_min'] >= targets['sizing'])}) | 83.3-90.2 % |",
+        f"| material accuracy, lowest | {pct(report['material_accuracy_min'])} % "
+        f"| >= {pct(targets['material'])} % "
+        f"({verdict(report['material_accuracy_min'] >= targets['material'])}) | 78.3-82.0 % |",
+        "| curvature accuracy, lowest (skirt; without a skirt scene, any garment) | "
+        f"{pct(report['curvature_accuracy_min'])} % | - | 82.5-86.7 % (skirt) |",
+        f"| joint-angle error, largest not occluded | "
+        f"{'-' if joints is None else f'{joints:.1f} deg'} | <= {targets['joint_deg']:.0f} deg "
+        f"({verdict(joints is not None and joints <= targets['joint_deg'])}) "
+        f"| 0-{report['thesis']['joints_max_deg']} deg |",
+        f"| minutes per garment (median; largest) | {report['minutes_per_garment']:.1f}; "
+        f"{report['minutes_per_garment_max']:.1f} | <= {targets['minutes']:.0f} "
+        f"({verdict(report['minutes_per_garment_max'] <= targets['minutes'])}) "
+        "| 240-360 (one i7) |",
+    ]
+    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -325,7 +393,16 @@ def main(argv: list[str] | None = None) -> dict:
         action="store_true",
         help="only the wrinkle probe: K and P of a skirt per bending multiplier",
     )
+    parser.add_argument(
+        "--table",
+        action="store_true",
+        help="only print the Markdown tables of the results file (--out, default the docs')",
+    )
     args = parser.parse_args(argv)
+    if args.table:
+        report = json.loads((args.out or Path("docs/results/garment_tables.json")).read_text())
+        print(markdown_table(report), end="")
+        return {k: report[k] for k in SUMMARY_KEYS}
     use_process_threads(1, name="threads")
     if args.quick:
         settings = RecoverySettings(
@@ -390,7 +467,8 @@ def main(argv: list[str] | None = None) -> dict:
                 "threads": 1,
             },
             "command": "python -m benchmarks.thesis.garment_tables"
-            + (" --quick" if args.quick else ""),
+            + (" --quick" if args.quick else "")
+            + (f" --scenes {' '.join(args.scenes)}" if args.scenes else ""),
             "rows": rows,
         }
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -82,6 +82,19 @@ def test_mesh_mask_fills_projected_triangles():
     assert abs(np.count_nonzero(mask) - 40 * 40) < 120
 
 
+def test_mesh_mask_is_the_union_where_layers_overlap():
+    # A square meshed as a grid of 8 x 8 cells, twice (a garment's front and back panels
+    # project onto each other): the mask is the square, with no holes where layers overlap
+    # or triangles share edges.
+    grid = TriMesh.grid(9, 9, size_u=40.0, size_v=40.0)
+    px = grid.uv.numpy() + 10.0
+    tri = grid.tri_indices.numpy()
+    two = np.concatenate([tri, tri + len(px)])
+    mask = mesh_mask(np.concatenate([px, px + 0.3]), two, (64, 64))
+    assert mask[12:49, 12:49].all()
+    assert abs(np.count_nonzero(mask) - 40 * 40) < 160
+
+
 def test_wrinkle_density_counts_folds_and_ignores_light_scale():
     h, w = 120, 120
     xs = np.arange(w)[None, :].repeat(h, 0)
@@ -117,7 +130,7 @@ def test_light_estimate_finds_the_key_direction():
         est = estimate_light(image, person, fit, camera)
         truth = np.asarray(light.direction)
         angle = math.degrees(math.acos(np.clip(est.direction @ truth, -1, 1)))
-        assert angle < 15.0, (name, angle)
+        assert angle < 5.0, (name, angle)
 
 
 def test_region_map_follows_the_nearest_primitive():

@@ -283,3 +283,54 @@ def test_mask_size_error_names_both_sizes(tmp_path):
     cv2.imwrite(str(tmp_path / "m.png"), np.full((80, 90), 255, np.uint8))
     with pytest.raises(InputError, match=r"mask: .* is 90 x 80 px, the image is 160 x 160 px"):
         recover_entry.read_mask(tmp_path / "m.png", "mask", (160, 160))
+
+
+@pytest.mark.render
+def test_the_evaluator_measures_the_true_drape_as_the_image_does():
+    """Silhouette (Eq. 6.10-6.11) and wrinkle density of a particle that is the true drape,
+    re-rendered under the true light, agree with what the image says: the objectives are zero
+    at the truth."""
+    from types import SimpleNamespace
+
+    from apps.garment.recovery import BodyFit, RecoverySettings, _Evaluator, garment_target
+    from simulator.garment.body import Pose
+    from simulator.garment.patterns import GarmentType
+
+    scene = next(s for s in SCENES if s.name == "skirt_low_midday")
+    body = Mannequin.build()
+    camera = scene_camera()
+    pattern, result = drape_scene(scene, body, 0.1)["skirt"]
+    pos = result.pos.numpy()
+    caps = body.capsules(scene.pose_angles()[None])
+    image, person, masks = render_scene(
+        camera,
+        scene_light(scene.lighting),
+        caps[0],
+        [(pos[0], pattern.topology.tri_indices, GARMENT_COLORS["skirt"])],
+    )
+    fit = BodyFit(body.shape, Pose(scene.pose_angles()), np.zeros(3), 0.0)
+    target = garment_target(
+        image, GarmentType.SKIRT, person, np.zeros_like(person), fit, camera, masks[0]
+    )
+    assert target.density[0] > 1.0  # the drape has folds to find
+    light = SimpleNamespace(light_spec=lambda: scene_light(scene.lighting))
+    timings = dict.fromkeys(("simulation", "rendering", "bookkeeping"), 0.0)
+    settings = RecoverySettings(edge_length=0.1)
+    ev = _Evaluator(pattern.topology, target, fit, camera, light, settings, timings, None)
+    try:
+        assert ev.silhouette(pos)[0] < 3.0  # px: anti-aliased outline pixels
+        np.testing.assert_allclose(ev.densities(pos, caps), target.density[None], rtol=0.05)
+    finally:
+        ev.close()
+
+
+def test_a_swarm_without_spread_covers_the_box_and_keeps_the_incumbent():
+    lo, hi = np.array([0.0, -1.0]), np.array([2.0, 1.0])
+    swarm = _swarm(lo, hi, 8, 3, np.array([0.1, -0.9]), spread=None)
+    x = swarm.ask()
+    np.testing.assert_allclose(x[0], [0.1, -0.9])
+    unit = (x[1:] - lo) / (hi - lo)
+    for d in range(2):  # one particle per eighth of each range, but the incumbent's
+        assert len(set(np.floor(unit[:, d] * 8).astype(int))) >= 6
+    near = _swarm(lo, hi, 8, 3, np.array([0.1, -0.9]), spread=0.05).ask()
+    assert np.ptp(near[:, 0]) < 0.5 < np.ptp(x[:, 0])

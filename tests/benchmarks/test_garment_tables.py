@@ -1,0 +1,55 @@
+"""The garment tables (*thesis* Tables 6.1-6.3): the docs' table is the results file's."""
+
+import copy
+import json
+from pathlib import Path
+
+from benchmarks.thesis.garment_tables import (
+    DOCS_PAGE,
+    TABLE_END,
+    TABLE_START,
+    main,
+    markdown_table,
+    thesis_column,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "docs" / "results" / "garment_tables.json"
+
+
+def test_the_docs_table_is_what_the_results_file_gives():
+    page = (ROOT / DOCS_PAGE).read_text()
+    shown = page.split(TABLE_START, 1)[1].split(TABLE_END, 1)[0].strip()
+    assert shown == markdown_table(json.loads(RESULTS.read_text())).strip()
+
+
+def test_table_says_which_targets_are_missed():
+    report = json.loads(RESULTS.read_text())
+    text = markdown_table(report)
+    row = report["rows"][0]
+    garment, m = next(iter(row["garments"].items()))
+    assert f"| {row['scene']} | {garment} |" in text
+    assert f"{100 * m['material_accuracy']:.1f}" in text
+    good = copy.deepcopy(report)
+    good.update(sizing_accuracy_min=0.96, material_accuracy_min=0.91)
+    good.update(joint_angle_err_max_deg=2.0, minutes_per_garment_max=14.0)
+    bad = copy.deepcopy(good)
+    bad.update(material_accuracy_min=0.89)
+    assert "missed" not in markdown_table(good)
+    assert markdown_table(bad).count("**missed**") == 1
+
+
+def test_thesis_columns_follow_the_tables_scene_order():
+    assert thesis_column("a_midday", "tshirt") == 0
+    assert thesis_column("c_sunset", "pants") == 5
+    assert thesis_column("skirt_high_midday", "skirt") == 2
+    assert thesis_column("a_midday", "skirt") is None
+
+
+def test_table_flag_prints_the_tables(capsys):
+    summary = main(["--table", "--out", str(RESULTS)])
+    out = capsys.readouterr().out
+    assert out.startswith("| scene | garment |") and "| summary" in out
+    assert (
+        summary["material_accuracy_min"] == json.loads(RESULTS.read_text())["material_accuracy_min"]
+    )
