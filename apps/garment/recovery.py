@@ -500,6 +500,8 @@ class GarmentTarget:
     """Wrinkle density per region [1/m], shape (R,)."""
     region_area: np.ndarray
     """Pixels per region, shape (R,)."""
+    body: SilhouetteTarget
+    """The person's silhouette: what Alg. 4's body term compares the posed body to."""
 
 
 def expected_mask(body: BodyFit, garment: str, camera, shape_hw) -> np.ndarray:
@@ -543,7 +545,15 @@ def garment_target(
     density, area = wrinkle_density(
         image, mask, regions, len(REGIONS[garment.value]), pixel_size(camera)
     )
-    return GarmentTarget(garment, mask, dont_care, SilhouetteTarget.from_mask(mask), density, area)
+    return GarmentTarget(
+        garment,
+        mask,
+        dont_care,
+        SilhouetteTarget.from_mask(mask),
+        density,
+        area,
+        SilhouetteTarget.from_mask(person),
+    )
 
 
 # ---------------------------------------------------------------------------- recovery
@@ -937,7 +947,10 @@ def recover_garment(
         # Alg. 4: pose, then material, with the sizing fixed.
         fitted = body_fit.pose.angles
         keys = [(JOINTS.index(j), a) for j, a, _, _ in BODY_SEARCH]
-        body_sil = SilhouetteTarget.from_mask(target.mask | target.dont_care)
+        # The body term compares the body with the person's silhouette. (The garment's mask
+        # plus its don't-care pixels is the person only for an inner layer: for a t-shirt
+        # over pants it left the legs out, and every pose paid for the legs as outside.)
+        body_sil = target.body
         for rnd in range(settings.joint_rounds):
             r = settings.pose_range_deg
             lo_p, hi_p = -np.full(len(keys), r), np.full(len(keys), r)

@@ -334,3 +334,32 @@ def test_a_swarm_without_spread_covers_the_box_and_keeps_the_incumbent():
         assert len(set(np.floor(unit[:, d] * 8).astype(int))) >= 6
     near = _swarm(lo, hi, 8, 3, np.array([0.1, -0.9]), spread=0.05).ask()
     assert np.ptp(near[:, 0]) < 0.5 < np.ptp(x[:, 0])
+
+
+def test_the_pose_step_compares_the_body_with_the_person_for_every_layer():
+    """Alg. 4's body term (Eq. 6.14) measures the posed body against the person's silhouette,
+    for an outer garment (a t-shirt over pants) as for an inner one: zero at the true body, and
+    a moved arm costs."""
+    from apps.garment.image import capsule_mask
+    from apps.garment.recovery import BodyFit, expected_mask, garment_target
+    from simulator.garment.body import JOINTS, Pose
+    from simulator.garment.patterns import GarmentType
+
+    body = Mannequin.build()
+    camera = scene_camera()
+    angles = POSES["a"].angles
+    fit = BodyFit(body.shape, Pose(angles), np.zeros(3), 0.0)
+    shape = (camera.height, camera.width)
+    true_body = capsule_mask(camera, body.capsules(angles[None])[0], shape)
+    person = true_body.copy()
+    tshirt = expected_mask(fit, "tshirt", camera, shape)
+    pants = expected_mask(fit, "pants", camera, shape) & ~tshirt
+    skin = person & ~tshirt & ~pants
+    image = np.full((*shape, 3), 128, np.uint8)
+    moved = angles.copy()
+    moved[JOINTS.index("shoulder_r"), 1] += 8.0
+    moved_body = capsule_mask(camera, body.capsules(moved[None])[0], shape)
+    for garment, mask in ((GarmentType.TSHIRT, tshirt), (GarmentType.PANTS, pants)):
+        target = garment_target(image, garment, person, skin, fit, camera, mask)
+        assert target.body.distance(true_body) == 0.0, garment
+        assert target.body.distance(moved_body) > 1.0, garment
