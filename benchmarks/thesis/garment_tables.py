@@ -23,16 +23,23 @@ Reported, beside the *thesis*'s numbers:
 ``docs/results/garment_tables.json``; ``--quick`` runs one skirt scene at a coarse resolution
 with small swarms (under 10 minutes on a 2-core CPU) and writes nothing unless ``--out`` is
 given. The last line printed is the summary as JSON.
+
+Every finished scene's row is kept in ``--work`` (default ``outputs/garment_tables/``), under
+the settings it was made with, so a killed run resumes at the scene it was on; ``--fresh``
+recomputes every scene. Each row names the commit that made it, and the results file lists
+them (``commits``), so rows from different code are visible.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import os
 import platform
 import statistics
+import subprocess
 import time
 from pathlib import Path
 
@@ -57,6 +64,7 @@ from apps.garment.scenes import (
     scene_light,
     vertex_regions,
 )
+from common.files import atomic_write_bytes
 from simulator.garment.body import JOINTS, Mannequin, Pose, joint_angle_errors
 from simulator.garment.curvature import regional_curvature
 from simulator.threads import use_process_threads
@@ -191,6 +199,47 @@ def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dic
         "body_fit": {"height": fit.shape.height, "offset": fit.offset.tolist(), "loss": fit.loss},
         "seconds": time.perf_counter() - start,
     }
+
+
+def code_commit() -> str | None:
+    """The checkout's commit, ``+dirty`` when tracked files differ from it; None outside git."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=30,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=30,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head + ("+dirty" if dirty else "")
+
+
+def rows_folder(work: Path, settings: RecoverySettings) -> Path:
+    """Where the rows made with these settings live: one folder per settings hash."""
+    text = json.dumps(dataclasses.asdict(settings), sort_keys=True)
+    return work / hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def stored_row(folder: Path, name: str) -> dict | None:
+    """A scene's finished row from an earlier run with the same settings, if any."""
+    path = folder / f"{name}.json"
+    if not path.is_file():
+        return None
+    try:
+        row = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return row if row.get("scene") == name else None
 
 
 def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> list[dict]:
@@ -389,6 +438,14 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--swarm", type=int, default=None, help="particles per swarm (16)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--work",
+        type=Path,
+        default=Path("outputs/garment_tables"),
+        help="finished scenes' rows, reused by a run with the same settings "
+        "(default outputs/garment_tables)",
+    )
+    parser.add_argument("--fresh", action="store_true", help="recompute every scene")
+    parser.add_argument(
         "--probe",
         action="store_true",
         help="only the wrinkle probe: K and P of a skirt per bending multiplier",
@@ -449,9 +506,24 @@ def main(argv: list[str] | None = None) -> dict:
         print(json.dumps(probe))
         return {"probe": probe}
 
+    folder = rows_folder(args.work, settings)
+    commit = code_commit()
     rows = []
     for name in names:
-        rows.append(run_scene(by_name[name], settings, settings.edge_length, log))
+        row = None if args.fresh else stored_row(folder, name)
+        if row is not None:
+            log(f"{name}: kept from {folder / (name + '.json')} (commit {row.get('commit')})")
+        else:
+            row = {
+                **run_scene(by_name[name], settings, settings.edge_length, log),
+                "commit": commit,
+            }
+            folder.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(folder / f"{name}.json", (json.dumps(row) + "\n").encode())
+        rows.append(row)
+    commits = sorted({str(r.get("commit")) for r in rows})
+    if len(commits) > 1:
+        log(f"rows from more than one commit: {', '.join(commits)} (--fresh recomputes them)")
     print_tables(rows)
     summary = summarise(rows)
     if out is not None:
@@ -469,11 +541,10 @@ def main(argv: list[str] | None = None) -> dict:
             "command": "python -m benchmarks.thesis.garment_tables"
             + (" --quick" if args.quick else "")
             + (f" --scenes {' '.join(args.scenes)}" if args.scenes else ""),
+            "commits": commits,
             "rows": rows,
         }
         out.parent.mkdir(parents=True, exist_ok=True)
-        from simulator.sequence import atomic_write_bytes
-
         atomic_write_bytes(out, (json.dumps(report, indent=2) + "\n").encode())
         print(f"wrote {out}")
     print(json.dumps({k: summary[k] for k in SUMMARY_KEYS}))

@@ -53,3 +53,36 @@ def test_table_flag_prints_the_tables(capsys):
     assert (
         summary["material_accuracy_min"] == json.loads(RESULTS.read_text())["material_accuracy_min"]
     )
+
+
+def test_a_killed_run_resumes_at_the_scene_it_was_on(tmp_path, monkeypatch):
+    import benchmarks.thesis.garment_tables as tables
+
+    report = json.loads(RESULTS.read_text())
+    made = []
+
+    def fake_scene(scene, settings, edge_length, log):
+        made.append(scene.name)
+        if scene.name == "a_sunset" and len(made) == 2:
+            raise KeyboardInterrupt  # killed on the second scene
+        row = copy.deepcopy(report["rows"][0])
+        return {**row, "scene": scene.name}
+
+    monkeypatch.setattr(tables, "run_scene", fake_scene)
+    argv = ["--scenes", "a_midday", "a_sunset", "--out", str(tmp_path / "r.json")]
+    argv += ["--work", str(tmp_path / "work")]
+    try:
+        main(argv)
+    except KeyboardInterrupt:
+        pass
+    assert made == ["a_midday", "a_sunset"] and not (tmp_path / "r.json").exists()
+    summary = main(argv)
+    assert made == ["a_midday", "a_sunset", "a_sunset"]  # a_midday kept
+    assert summary["scenes"] == ["a_midday", "a_sunset"]
+    written = json.loads((tmp_path / "r.json").read_text())
+    assert [r["scene"] for r in written["rows"]] == ["a_midday", "a_sunset"]
+    assert len(written["commits"]) == 1
+    main([*argv, "--fresh"])
+    assert made[3:] == ["a_midday", "a_sunset"]
+    main([*argv, "--swarm", "4"])  # other settings: other rows
+    assert made[5:] == ["a_midday", "a_sunset"]
