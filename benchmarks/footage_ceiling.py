@@ -16,9 +16,15 @@ ceiling for a sim-trained model reading that rung, and a pessimistic measure of 
 footage carries (a linear probe on fixed features). The ridge strength is chosen inside each
 training fold by generalised cross-validation.
 
+With ``--state-columns`` (``labels.csv`` columns of the cloth's measured motion, such as the
+independent engine's ``vertex_speed,out_of_plane_rms,edge_strain_rms`` and the ``wind``), the
+same probe also reads each column from that motion itself (rung ``state``: positive numbers
+in log, words one-hot, every number also per word, so each wind gets its own slope). That is
+the ceiling of any model that sees only the motion, whatever its camera.
+
 Usage: ``python -m benchmarks.footage_ceiling --report outputs/sim2real/<name>
-[--columns stiffness,density] [--group COLUMN] [--out ceiling.json]``. Prints a table and,
-as the last line, the JSON.
+[--columns stiffness,density] [--group COLUMN] [--state-columns A,B,...] [--out
+ceiling.json]``. Prints a table and, as the last line, the JSON.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +42,7 @@ from common.errors import InputError
 from common.files import atomic_write_bytes
 from common.paths import check_output_file
 
-__all__ = ["ceiling", "main", "probe_r"]
+__all__ = ["ceiling", "main", "probe_r", "state_features"]
 
 ALPHAS = np.logspace(-3, 4, 15)
 """Ridge strengths tried by generalised cross-validation (features standardised)."""
@@ -138,7 +145,35 @@ def _held_out(x, clip_video, video_value, video_group, *, n_boot: int, seed: int
     return {"r": pearson(videos), "r_ci": interval, "videos": len(videos), "predicted": pred}
 
 
-def ceiling(report_dir: Path, columns: list[str], group: str | None) -> dict:
+def state_features(rows: list[dict[str, str]], columns: list[str]) -> dict[str, np.ndarray]:
+    """Each video's features from measured motion columns (module docstring: rung ``state``).
+
+    ``rows``: ``labels.csv`` rows as ``{column: text}``; a column whose every value is a
+    positive number enters in log, one of other numbers as is, one of words as one-hot; every
+    number is also multiplied by every one-hot column.
+    """
+    numbers, words = [], []
+    for column in columns:
+        texts = [row[column] for row in rows]
+        try:
+            values = np.array([float(t) for t in texts])
+        except ValueError:
+            levels = sorted(set(texts))
+            words += [np.array([t == level for t in texts], float) for level in levels]
+            continue
+        if not np.isfinite(values).all():
+            raise InputError(f"--state-columns: {column} holds a value that is not finite")
+        numbers.append(np.log(values) if (values > 0).all() else values)
+    parts = numbers + words + [n * w for n in numbers for w in words]
+    if not parts:
+        raise InputError("--state-columns: give at least one labels.csv column")
+    x = np.column_stack(parts)
+    return {row["video"]: x[i] for i, row in enumerate(rows)}
+
+
+def ceiling(
+    report_dir: Path, columns: list[str], group: str | None, state_columns: Sequence[str] = ()
+) -> dict:
     """Every rung's probe r for every column on a diagnosed real set (module docstring)."""
     from datasets.real_video import fabric_groups, read_labels
     from sim2real.reopen import report_real_features
@@ -146,12 +181,16 @@ def ceiling(report_dir: Path, columns: list[str], group: str | None) -> dict:
 
     result = read_report(report_dir, "--report")
     real_dir = Path(result.inputs.real_dir)
-    rows = read_labels(real_dir, columns)
+    rows = read_labels(real_dir, [*columns, *(c for c in state_columns if c not in columns)])
     header = list(rows[0].fields)
     labels, _, rule = fabric_groups(rows, header, group, real_dir / "labels.csv")
     video_group = {row.fields["video"]: g for row, g in zip(rows, labels, strict=True)}
     features = report_real_features(result.inputs)
     clip_video = np.asarray(features.groups).astype(str)
+    rungs = dict(features.rungs)
+    if state_columns:
+        state = state_features([row.fields for row in rows], list(state_columns))
+        rungs["state"] = np.stack([state[v] for v in clip_video])
     out = {"report": str(report_dir), "group": rule, "columns": {}}
     for column in columns:
         values = {}
@@ -167,7 +206,7 @@ def ceiling(report_dir: Path, columns: list[str], group: str | None) -> dict:
                 )
             values[row.fields["video"]] = math.log(value)
         out["columns"][column] = {
-            rung: probe_r(x, clip_video, values, video_group) for rung, x in features.rungs.items()
+            rung: probe_r(x, clip_video, values, video_group) for rung, x in rungs.items()
         }
     return out
 
@@ -204,6 +243,11 @@ def main(argv: list[str] | None = None) -> dict:
         "--group",
         help="the column that names a fabric (default: fabric if present, else identical rows)",
     )
+    parser.add_argument(
+        "--state-columns",
+        default="",
+        help="labels.csv columns of the measured motion (and the wind): adds the rung state",
+    )
     parser.add_argument("--out", help="also write the JSON here")
     args = parser.parse_args(argv)
     if args.out:
@@ -211,7 +255,8 @@ def main(argv: list[str] | None = None) -> dict:
     columns = [c.strip() for c in args.columns.split(",") if c.strip()]
     if not columns:
         raise InputError("--columns: give at least one measured column")
-    out = ceiling(Path(args.report), columns, args.group)
+    state_columns = [c.strip() for c in args.state_columns.split(",") if c.strip()]
+    out = ceiling(Path(args.report), columns, args.group, state_columns)
     print(_table(out))
     for column in out["columns"].values():
         for entry in column.values():

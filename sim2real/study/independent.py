@@ -13,11 +13,13 @@ were not made by our own switches:
 - ``labels.csv`` with ``video, stiffness, density, wind, fps`` and, as extra columns that the
   reader carries along (it refuses none), ``fabric`` (the reader's automatic group column: the
   three winds of one fabric are one group), ``stretch_stiffness`` [N/m] and
-  ``bend_stiffness`` [N·m]. ``stiffness`` has the meaning and unit of the sealed sets'
-  (:mod:`.seal`): the bend multiplier ``k``, i.e. the bending stiffness relative to the basis
-  fabric ``camel-ponte-roma``'s (``bend_stiffness = k * mean(basis bending samples)``, as
-  :func:`simulator.cloth.material.class_summary` defines it), dimensionless; ``density`` is
-  the areal density [kg/m²];
+  ``bend_stiffness`` [N·m], and the cloth's measured 3D motion (what a motion-capture rig
+  would record beside real footage): ``vertex_speed`` [m/s], ``out_of_plane_rms`` [m] and
+  ``edge_strain_rms`` (:func:`edge_strain_rms`). ``stiffness`` has the meaning and unit of
+  the sealed sets' (:mod:`.seal`): the bend multiplier ``k``, i.e. the bending stiffness
+  relative to the basis fabric ``camel-ponte-roma``'s (``bend_stiffness = k * mean(basis
+  bending samples)``, as :func:`simulator.cloth.material.class_summary` defines it),
+  dimensionless; ``density`` is the areal density [kg/m²];
 - ``DIR.engine.json`` beside the folder: every difference from our scene (below), the codec
   actually used, the frame rate, the scene constants and each video's ground truth.
 
@@ -119,6 +121,7 @@ __all__ = [
     "default_frame_count",
     "draw_fabric",
     "draw_look",
+    "edge_strain_rms",
     "import_mujoco",
     "measured_ranges",
     "out_of_plane_rms",
@@ -698,6 +701,16 @@ def out_of_plane_rms(pos: np.ndarray) -> float:
     return float(np.mean(values))
 
 
+def edge_strain_rms(pos: np.ndarray, edges: np.ndarray, rest: np.ndarray) -> float:
+    """RMS over frames and edges of the edge strain ``l / l0 - 1`` [-].
+
+    The in-plane stretch that the membrane stiffness resists: ``pos`` (frames, V, 3),
+    ``edges`` (E, 2) vertex pairs (MuJoCo's ``flex_edge``), ``rest`` (E,) rest lengths.
+    """
+    lengths = np.linalg.norm(pos[:, edges[:, 0]] - pos[:, edges[:, 1]], axis=-1)
+    return float(np.sqrt(np.mean((lengths / rest - 1.0) ** 2)))
+
+
 def default_frame_count(fps: float) -> int:
     """Frames for :data:`CLIPS_PER_VIDEO` clips of :data:`CLIP_LEN` at the training rate."""
     return CLIPS_PER_VIDEO * CLIP_LEN * max(1, round(fps / TRAINING_FPS))
@@ -848,6 +861,10 @@ def _record_video(
         "frames": len(pos),
         "mean_vertex_speed_m_s": round(float(speed), 6),
         "out_of_plane_rms_m": round(out_of_plane_rms(pos), 7),
+        "edge_strain_rms": round(
+            edge_strain_rms(pos, np.asarray(model.flex_edge), np.asarray(model.flexedge_length0)),
+            8,
+        ),
         "sha256": _digest(written),
     }
 
@@ -1011,7 +1028,10 @@ def write_independent_set(
     ranges = measured_ranges()
     levels = WIND_LEVELS[winds]
     videos = []
-    rows = ["video,stiffness,density,wind,fps,fabric,stretch_stiffness,bend_stiffness"]
+    rows = [
+        "video,stiffness,density,wind,fps,fabric,stretch_stiffness,bend_stiffness,"
+        "vertex_speed,out_of_plane_rms,edge_strain_rms"
+    ]
     with staged_folder(out, replace=overwrite) as stage:
         chosen = _choose_codec(codec, stage, fps, size)
         bar = tqdm(
@@ -1048,7 +1068,8 @@ def write_independent_set(
                         rows.append(
                             f"{name},{fabric.stiffness:.6g},{fabric.density:.6g},W{level + 1},"
                             f"{fps:g},f{f:02d},{fabric.stretch_stiffness:.6g},"
-                            f"{fabric.bend_stiffness:.6g}"
+                            f"{fabric.bend_stiffness:.6g},{truth['mean_vertex_speed_m_s']:.6g},"
+                            f"{truth['out_of_plane_rms_m']:.6g},{truth['edge_strain_rms']:.6g}"
                         )
                         bar.update(1)
                         if on_video is not None:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from benchmarks.footage_ceiling import main, probe_r
+from benchmarks.footage_ceiling import main, probe_r, state_features
 
 
 def _footage(carried: bool, seed: int = 0):
@@ -48,3 +48,42 @@ def test_a_folder_without_a_diagnosis_is_refused_in_one_line(tmp_path, capsys):
         main(["--report", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: --report")
+
+
+def test_state_features_log_numbers_one_hot_words_and_a_slope_per_word():
+    rows = [
+        {"video": "a", "speed": "0.1", "strain": "-0.5", "wind": "W1"},
+        {"video": "b", "speed": "0.4", "strain": "0.5", "wind": "W2"},
+        {"video": "c", "speed": "1.6", "strain": "1.5", "wind": "W1"},
+    ]
+    x = state_features(rows, ["speed", "strain", "wind"])
+    assert list(x) == ["a", "b", "c"]
+    # log speed, strain as is (not all positive), W1, W2, speed*W1, speed*W2, strain*W1, ...
+    assert x["b"] == pytest.approx([np.log(0.4), 0.5, 0, 1, 0, np.log(0.4), 0, 0.5])
+    assert x["c"][:5] == pytest.approx([np.log(1.6), 1.5, 1, 0, np.log(1.6)])
+
+
+def test_a_value_the_motion_carries_per_wind_is_read_from_the_state():
+    rng = np.random.default_rng(1)
+    rows, values, groups = [], {}, {}
+    for fabric in range(30):
+        density = rng.uniform(0.1, 0.3)
+        for wind, gain in (("W1", 1.0), ("W2", -1.0)):  # the sign of the effect flips with wind
+            video = f"v{fabric:02d}{wind}"
+            speed = np.exp(gain * np.log(density) + 0.1 * rng.normal())
+            rows.append({"video": video, "speed": f"{speed:.6g}", "wind": wind})
+            values[video], groups[video] = np.log(density), f"f{fabric:02d}"
+    x = state_features(rows, ["speed", "wind"])
+    clips = np.array(list(x))
+    found = probe_r(np.stack([x[v] for v in clips]), clips, values, groups, n_boot=50, n_null=20)
+    assert found["r"] > 0.8 and found["p"] <= 1 / 21 + 1e-9
+    without_wind = state_features(rows, ["speed"])
+    lost = probe_r(np.stack([without_wind[v] for v in clips]), clips, values, groups, n_null=0)
+    assert lost["r"] < 0.5  # one slope for both winds cannot read it
+
+
+def test_a_state_column_that_is_not_finite_is_refused():
+    from common.errors import InputError
+
+    with pytest.raises(InputError, match="--state-columns: speed"):
+        state_features([{"video": "a", "speed": "nan"}], ["speed"])

@@ -28,6 +28,9 @@ COLUMNS = [
     "fabric",
     "stretch_stiffness",
     "bend_stiffness",
+    "vertex_speed",
+    "out_of_plane_rms",
+    "edge_strain_rms",
 ]
 SMALL = [
     "--fabrics",
@@ -147,6 +150,11 @@ def test_labels_have_the_columns_and_positive_values(footage):
     truth = engine["videos"]
     assert [t["video"] for t in truth] == [r["video"] for r in rows]
     assert [t["bend_stiffness_nm"] for t in truth] == [float(r["bend_stiffness"]) for r in rows]
+    for t, r in zip(truth, rows, strict=True):  # the 3D motion columns are the engine's truth
+        assert float(r["vertex_speed"]) == pytest.approx(t["mean_vertex_speed_m_s"], rel=1e-5)
+        assert float(r["out_of_plane_rms"]) == pytest.approx(t["out_of_plane_rms_m"], rel=1e-5)
+        assert float(r["edge_strain_rms"]) == pytest.approx(t["edge_strain_rms"], rel=1e-5)
+        assert 0 < t["edge_strain_rms"] < 0.05
     assert all(len(list((footage / r["video"]).glob("*.png"))) == 10 for r in rows)
 
 
@@ -194,6 +202,37 @@ def test_a_stiffer_fabric_deforms_less_under_the_same_wind(drag):
         assert motion["stiff"]["speed"] < motion["soft"]["speed"], motion
     assert motion["stiff"]["nonrigid"] < 0.95 * motion["soft"]["nonrigid"], motion
     assert motion["stiff"]["out_of_plane"] < 0.9 * motion["soft"]["out_of_plane"], motion
+
+
+def test_edge_strain_is_zero_under_rigid_motion_and_the_stretch_under_scaling():
+    rng = np.random.default_rng(0)
+    rest_pos = rng.normal(size=(6, 3))
+    edges = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [4, 5], [0, 5], [1, 4]])
+    rest = np.linalg.norm(rest_pos[edges[:, 0]] - rest_pos[edges[:, 1]], axis=-1)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    moved = np.stack([rest_pos, rest_pos @ q.T + [0.3, -1.0, 2.0]])
+    assert independent.edge_strain_rms(moved, edges, rest) == pytest.approx(0.0, abs=1e-12)
+    stretched = np.stack([rest_pos * 1.01, rest_pos * 0.98])
+    expected = np.sqrt((0.01**2 + 0.02**2) / 2)
+    assert independent.edge_strain_rms(stretched, edges, rest) == pytest.approx(expected)
+
+
+def test_a_fabric_of_lower_stretch_stiffness_strains_more_under_the_same_wind():
+    mujoco = _mujoco()
+    scene = independent.EngineScene(wind_drag="plate")
+    ranges = independent.measured_ranges()
+    density = float(np.sqrt(np.prod(ranges["density"])))
+    bend = float(np.sqrt(np.prod(ranges["bend_stiffness"])))
+    strain = {}
+    for name, stretch in zip(("soft", "stiff"), ranges["stretch_stiffness"], strict=True):
+        fabric = independent.EngineFabric(0, stretch, bend, density, 1.0)
+        model = mujoco.MjModel.from_xml_string(independent.scene_mjcf(scene, fabric))
+        pos = independent.simulate_positions(fabric, 0, seed=0, frames=10, scene=scene)
+        strain[name] = independent.edge_strain_rms(
+            pos, np.asarray(model.flex_edge), np.asarray(model.flexedge_length0)
+        )
+    # load over stiffness: about the stiffness ratio (26x), more than 10x
+    assert strain["soft"] > 10 * strain["stiff"] > 0, strain
 
 
 def _plate_sheet(rotation: np.ndarray | None = None):
