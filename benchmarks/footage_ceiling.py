@@ -181,7 +181,16 @@ def ceiling(
 
     result = read_report(report_dir, "--report")
     real_dir = Path(result.inputs.real_dir)
-    rows = read_labels(real_dir, [*columns, *(c for c in state_columns if c not in columns)])
+    from datasets.real_video import RESERVED_KEYS
+
+    measured = [c for c in state_columns if c not in columns and c not in RESERVED_KEYS]
+    rows = read_labels(real_dir, [*columns, *measured])
+    lacking = sorted({c for c in state_columns if c not in rows[0].fields})
+    if lacking:  # a reserved column (the wind) that read_labels does not ask for
+        raise InputError(
+            f"--state-columns: {real_dir / 'labels.csv'} lacks {lacking}; it has "
+            f"{sorted(rows[0].fields)}"
+        )
     header = list(rows[0].fields)
     labels, _, rule = fabric_groups(rows, header, group, real_dir / "labels.csv")
     video_group = {row.fields["video"]: g for row, g in zip(rows, labels, strict=True)}
