@@ -22,9 +22,16 @@ same probe also reads each column from that motion itself (rung ``state``: posit
 in log, words one-hot, every number also per word, so each wind gets its own slope). That is
 the ceiling of any model that sees only the motion, whatever its camera.
 
+With ``--sim-readout`` it also asks what a reader trained on simulations transfers: per rung,
+a ridge fitted on the diagnosis's nominal simulated clips S (and on the calibrated S*, when the
+joint calibration chose one) from the features to their own ``stiffness`` (bend multiplier)
+and ``density``, applied unchanged to R, and its pooled Pearson r with R's measured column.
+Between that and the ceiling lies what R's own labels add; between it and the model's score,
+what the model's head loses.
+
 Usage: ``python -m benchmarks.footage_ceiling --report outputs/sim2real/<name>
-[--columns stiffness,density] [--group COLUMN] [--state-columns A,B,...] [--out
-ceiling.json]``. Prints a table and, as the last line, the JSON.
+[--columns stiffness,density] [--group COLUMN] [--state-columns A,B,...] [--sim-readout]
+[--out ceiling.json]``. Prints a table and, as the last line, the JSON.
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ from common.errors import InputError
 from common.files import atomic_write_bytes
 from common.paths import check_output_file
 
-__all__ = ["ceiling", "main", "probe_r", "state_features"]
+__all__ = ["ceiling", "main", "probe_r", "sim_readout", "state_features"]
 
 ALPHAS = np.logspace(-3, 4, 15)
 """Ridge strengths tried by generalised cross-validation (features standardised)."""
@@ -104,6 +111,20 @@ def probe_r(
     return found
 
 
+def _group_interval(pearson, videos, video_group, n_boot: int, seed: int) -> list[float] | None:
+    """95 % interval of ``pearson(videos)`` over ``n_boot`` resamplings of whole groups."""
+    groups = sorted({video_group[v] for v in videos})
+    by_group = {g: [v for v in videos if video_group[v] == g] for g in groups}
+    rng = np.random.default_rng(seed)
+    boot = []
+    for _ in range(n_boot):
+        drawn = rng.choice(len(groups), len(groups))
+        boot.append(pearson([v for i in drawn for v in by_group[groups[i]]]))
+    boot = np.array(boot)
+    boot = boot[np.isfinite(boot)]
+    return [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))] if len(boot) else None
+
+
 def _held_out(x, clip_video, video_value, video_group, *, n_boot: int, seed: int = 0) -> dict:
     """The probe's held-out r (and its bootstrap interval when ``n_boot``)."""
     videos = sorted(set(clip_video.tolist()) & set(video_value))
@@ -122,8 +143,6 @@ def _held_out(x, clip_video, video_value, video_group, *, n_boot: int, seed: int
         centre[out] = y_clip[~out].mean()
     pred = {v: float(predicted[clip_video == v].mean()) for v in videos}
     fold_mean = {v: float(centre[clip_video == v][0]) for v in videos}
-    groups = sorted({video_group[v] for v in videos})
-    by_group = {g: [v for v in videos if video_group[v] == g] for g in groups}
 
     def pearson(vs):
         a = np.array([pred[v] - fold_mean[v] for v in vs])
@@ -132,17 +151,71 @@ def _held_out(x, clip_video, video_value, video_group, *, n_boot: int, seed: int
             return math.nan
         return float(np.corrcoef(a, b)[0, 1])
 
-    rng = np.random.default_rng(seed)
-    boot = []
-    for _ in range(n_boot):
-        drawn = rng.choice(len(groups), len(groups))
-        boot.append(pearson([v for i in drawn for v in by_group[groups[i]]]))
-    boot = np.array(boot)
-    boot = boot[np.isfinite(boot)]
-    interval = (
-        [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))] if len(boot) else None
-    )
+    interval = _group_interval(pearson, videos, video_group, n_boot, seed)
     return {"r": pearson(videos), "r_ci": interval, "videos": len(videos), "predicted": pred}
+
+
+SIM_LABELS = ("stiffness", "density")
+"""The measured columns a simulated set labels its clips with (LadderFeatures' labels)."""
+
+
+def sim_readout(
+    x_sim: np.ndarray,
+    y_sim: np.ndarray,
+    x_real: np.ndarray,
+    clip_video: np.ndarray,
+    video_value: dict[str, float],
+    video_group: dict[str, str],
+    *,
+    n_boot: int = 1000,
+    seed: int = 0,
+) -> dict:
+    """Pooled r on R of a ridge fitted on simulated clips (``x_sim`` to ``y_sim``).
+
+    ``y_sim`` and ``video_value`` on the same scale (the log of the measured value).
+
+    The features are standardised with the simulated clips' statistics and the fit applied to
+    R unchanged; a video's prediction is its clips' mean. Interval: bootstrap over groups.
+    Where the simulated clips all share one value there is nothing to fit: ``varied`` False.
+    """
+    videos = sorted(set(clip_video.tolist()) & set(video_value))
+    if np.ptp(y_sim) < 1e-9:  # e.g. density: the simulated classes share the basis fabric's
+        return {"r": math.nan, "r_ci": None, "videos": len(videos), "varied": False}
+    mean, scale = x_sim.mean(0), x_sim.std(0)
+    scale = np.where(scale > 0, scale, 1.0)
+    w, b = _ridge_gcv((x_sim - mean) / scale, y_sim)
+    predicted = ((x_real - mean) / scale) @ w + b
+    pred = {v: float(predicted[clip_video == v].mean()) for v in videos}
+
+    def pearson(vs):
+        a = np.array([pred[v] for v in vs])
+        c = np.array([video_value[v] for v in vs])
+        if a.std() == 0 or c.std() == 0:
+            return math.nan
+        return float(np.corrcoef(a, c)[0, 1])
+
+    return {
+        "r": pearson(videos),
+        "r_ci": _group_interval(pearson, videos, video_group, n_boot, seed),
+        "videos": len(videos),
+        "varied": True,
+    }
+
+
+def _sim_sets(result) -> dict:
+    """The diagnosis's S and, when calibrated, S*, from its feature cache."""
+    from sim2real.diagnosis.joint import assignment
+    from sim2real.reopen import reopen
+
+    try:
+        reopened = reopen(result)
+    except ValueError as err:
+        raise InputError(f"--sim-readout: {err}") from None
+    named = {"S": ()}
+    if result.joint is not None and result.joint.strengths:
+        named["S*"] = assignment(result.joint.strengths)
+    built = reopened.features(list(named.values()))
+    return dict(zip(named, built, strict=True))
 
 
 def state_features(rows: list[dict[str, str]], columns: list[str]) -> dict[str, np.ndarray]:
@@ -172,7 +245,12 @@ def state_features(rows: list[dict[str, str]], columns: list[str]) -> dict[str, 
 
 
 def ceiling(
-    report_dir: Path, columns: list[str], group: str | None, state_columns: Sequence[str] = ()
+    report_dir: Path,
+    columns: list[str],
+    group: str | None,
+    state_columns: Sequence[str] = (),
+    *,
+    sim: bool = False,
 ) -> dict:
     """Every rung's probe r for every column on a diagnosed real set (module docstring)."""
     from datasets.real_video import fabric_groups, read_labels
@@ -201,6 +279,7 @@ def ceiling(
         state = state_features([row.fields for row in rows], list(state_columns))
         rungs["state"] = np.stack([state[v] for v in clip_video])
     out = {"report": str(report_dir), "group": rule, "columns": {}}
+    sim_sets = _sim_sets(result) if sim and set(columns) & set(SIM_LABELS) else {}
     for column in columns:
         values = {}
         for row in rows:
@@ -217,6 +296,21 @@ def ceiling(
         out["columns"][column] = {
             rung: probe_r(x, clip_video, values, video_group) for rung, x in rungs.items()
         }
+        if sim_sets and column in SIM_LABELS:
+            out.setdefault("sim_readout", {})[column] = {
+                name: {
+                    rung: sim_readout(
+                        s.rungs[rung],
+                        np.log(getattr(s, column)),
+                        x,
+                        clip_video,
+                        values,
+                        video_group,
+                    )
+                    for rung, x in features.rungs.items()
+                }
+                for name, s in sim_sets.items()
+            }
     return out
 
 
@@ -240,6 +334,28 @@ def _table(out: dict) -> str:
     return "\n".join(lines)
 
 
+def _sim_table(readout: dict) -> str:
+    """Rows (column, simulated set), a column per rung: the readout's r on R [95 % CI]."""
+    first = next(iter(next(iter(readout.values())).values()))
+    rungs = list(first)
+    lines = [
+        "| fitted on simulated | " + " | ".join(rungs) + " |",
+        "|---|" + "---|" * len(rungs),
+    ]
+    for column, by_set in readout.items():
+        for name, entries in by_set.items():
+            cells = []
+            for rung in rungs:
+                entry = entries[rung]
+                if not entry["varied"]:
+                    cells.append("not varied in the simulations")
+                    continue
+                low, high = entry["r_ci"] or (math.nan, math.nan)
+                cells.append(f"{entry['r']:.2f} [{low:.2f}, {high:.2f}]")
+            lines.append(f"| {column} on {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> dict:
     """Command line (see the module docstring)."""
@@ -257,6 +373,11 @@ def main(argv: list[str] | None = None) -> dict:
         default="",
         help="labels.csv columns of the measured motion (and the wind): adds the rung state",
     )
+    parser.add_argument(
+        "--sim-readout",
+        action="store_true",
+        help="also fit each rung's probe on the simulated S (and S*) and read R with it",
+    )
     parser.add_argument("--out", help="also write the JSON here")
     args = parser.parse_args(argv)
     if args.out:
@@ -265,8 +386,11 @@ def main(argv: list[str] | None = None) -> dict:
     if not columns:
         raise InputError("--columns: give at least one measured column")
     state_columns = [c.strip() for c in args.state_columns.split(",") if c.strip()]
-    out = ceiling(Path(args.report), columns, args.group, state_columns)
+    out = ceiling(Path(args.report), columns, args.group, state_columns, sim=args.sim_readout)
     print(_table(out))
+    if out.get("sim_readout"):
+        print()
+        print(_sim_table(out["sim_readout"]))
     for column in out["columns"].values():
         for entry in column.values():
             entry.pop("predicted")

@@ -87,3 +87,28 @@ def test_a_state_column_that_is_not_finite_is_refused():
 
     with pytest.raises(InputError, match="--state-columns: speed"):
         state_features([{"video": "a", "speed": "nan"}], ["speed"])
+
+
+def test_a_reader_fitted_on_simulations_transfers_what_both_domains_share():
+    from benchmarks.footage_ceiling import sim_readout
+
+    rng = np.random.default_rng(2)
+
+    def clips(n, shift, carried=True):
+        value = rng.uniform(-1, 1, n)
+        x = rng.normal(size=(n, 8))
+        x[:, 0] += 2 * value if carried else 0.0
+        return x + shift, value
+
+    x_sim, y_sim = clips(160, 0.0)
+    x_real, y_real = clips(90, 0.7)  # the same relation, the features offset by the domain
+    videos = np.array([f"v{i:02d}" for i in range(90)])
+    values = dict(zip(videos, y_real, strict=True))
+    groups = {v: f"f{i // 3}" for i, v in enumerate(videos)}
+    found = sim_readout(x_sim, y_sim, x_real, videos, values, groups, n_boot=100)
+    assert found["r"] > 0.7 and found["r_ci"][0] > 0.4 and found["videos"] == 90
+    x_none, _ = clips(90, 0.7, carried=False)  # R's features do not carry it
+    lost = sim_readout(x_sim, y_sim, x_none, videos, values, groups, n_boot=100)
+    assert abs(lost["r"]) < 0.3
+    same = sim_readout(x_sim, np.full(160, 0.3), x_real, videos, values, groups, n_boot=10)
+    assert same["varied"] is False and np.isnan(same["r"])  # one simulated value: no fit
