@@ -69,6 +69,7 @@ def test_a_killed_run_resumes_at_the_scene_it_was_on(tmp_path, monkeypatch):
         return {**row, "scene": scene.name}
 
     monkeypatch.setattr(tables, "run_scene", fake_scene)
+    monkeypatch.setattr(tables, "use_process_threads", lambda *a, **k: None)  # keep pytest's
     argv = ["--scenes", "a_midday", "a_sunset", "--out", str(tmp_path / "r.json")]
     argv += ["--work", str(tmp_path / "work")]
     try:
