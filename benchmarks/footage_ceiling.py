@@ -218,6 +218,14 @@ def _sim_sets(result) -> dict:
     return dict(zip(named, built, strict=True))
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def state_features(rows: list[dict[str, str]], columns: list[str]) -> dict[str, np.ndarray]:
     """Each video's features from measured motion columns (module docstring: rung ``state``).
 
@@ -231,6 +239,13 @@ def state_features(rows: list[dict[str, str]], columns: list[str]) -> dict[str, 
         try:
             values = np.array([float(t) for t in texts])
         except ValueError:
+            numeric = [t for t in texts if _is_number(t)]
+            if numeric:  # a number column with a blank or a word: refuse, do not one-hot it
+                bad = next(t for t in texts if not _is_number(t))
+                raise InputError(
+                    f"--state-columns: {column} mixes numbers ({numeric[0]!r}) and other "
+                    f"values ({bad!r}); give a column of numbers or a column of words"
+                ) from None
             levels = sorted(set(texts))
             words += [np.array([t == level for t in texts], float) for level in levels]
             continue

@@ -87,6 +87,9 @@ def test_a_state_column_that_is_not_finite_is_refused():
 
     with pytest.raises(InputError, match="--state-columns: speed"):
         state_features([{"video": "a", "speed": "nan"}], ["speed"])
+    rows = [{"video": "a", "speed": "0.1"}, {"video": "b", "speed": ""}]  # a blank: refused
+    with pytest.raises(InputError, match="speed mixes numbers"):
+        state_features(rows, ["speed"])
 
 
 def test_a_reader_fitted_on_simulations_transfers_what_both_domains_share():
