@@ -124,9 +124,13 @@ __all__ = [
 def comparison_rule(material_set: MaterialSet = WANG54) -> str:
     """How :func:`comparison_classes` chooses in ``material_set``'s grid, in words."""
     grid = f"{material_set.stretch_count} x {material_set.bend_count}"
+    steps = "one stretch or one bend step"
+    if material_set.density_count > 1:
+        grid += f" x {material_set.density_count}"
+        steps = "one stretch, bend or density step"
     return (
         "the predicted class (argmax of the clip-averaged probabilities) and, of its grid "
-        f"neighbours (one stretch or one bend step away in the {grid} grid), the two with the "
+        f"neighbours ({steps} away in the {grid} grid), the two with the "
         "highest probability (ties: lower class id)"
     )
 
@@ -347,14 +351,17 @@ def predict_video(
 
 
 def grid_neighbours(class_id: int, material_set: MaterialSet = WANG54) -> tuple[int, ...]:
-    """Classes one stretch or one bend step from ``class_id`` in the set's grid, ascending."""
-    bend_count = material_set.bend_count
-    stretch, bend = divmod(int(class_id), bend_count)
+    """Classes one stretch, bend or density step from ``class_id`` in the set's grid, ascending."""
+    grid = material_set.grid
+    here = grid.position(int(class_id))
+    counts = (grid.stretch_count, grid.bend_count, grid.density_count)
     out = []
-    for ds, db in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        s, b = stretch + ds, bend + db
-        if 0 <= s < material_set.stretch_count and 0 <= b < bend_count:
-            out.append(s * bend_count + b)
+    for axis in range(3):
+        for step in (-1, 1):
+            there = list(here)
+            there[axis] += step
+            if 0 <= there[axis] < counts[axis]:
+                out.append(grid.class_id(*there))
     return tuple(sorted(out))
 
 
@@ -468,11 +475,17 @@ def _one_scene(spec: DatasetSpec) -> WorkUnit:
 
 def _class_entry(class_id: int, probability: float, material_set: MaterialSet, **extra) -> dict:
     stretch, bend = material_set.multipliers(class_id)
+    density = (
+        {"density_multiplier": material_set.density_mult(class_id)}
+        if material_set.density_count > 1
+        else {}
+    )
     return {
         "class": int(class_id),
         "probability": float(probability),
         "stretch_multiplier": stretch,
         "bend_multiplier": bend,
+        **density,
         **extra,
     }
 

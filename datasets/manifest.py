@@ -127,10 +127,10 @@ def clip_record(
     datasets made before it existed are unchanged.
     """
     summary = spec.material_set.summary(sim.class_id)
-    stretch_index, bend_index = divmod(sim.class_id, spec.material_set.bend_count)
+    stretch_index, bend_index, density_index = spec.material_set.position(sim.class_id)
     speeds = getattr(spec.scenario, "wind_speeds", None)
     preset = spec.preset
-    return {
+    row = {
         "key": f"{spec.motion}-{sim.sim_id}-k{clip_index:02d}",
         "split": sim.split,
         "shard": shard,
@@ -158,7 +158,20 @@ def clip_record(
         "width": int(frames_shape[2]),
         "sha256": sha256,
         "coverage": bool(coverage),
-    } | ({"passes": True} if passes else {})
+    }
+    if passes:
+        row["passes"] = True
+    return row | _density_fields(spec, density_index, summary)
+
+
+def _density_fields(spec: DatasetSpec, density_index: int, summary: dict) -> dict:
+    """A row's density index and multiplier, in sets of several densities only.
+
+    Rows of one-density sets keep the keys they had before density became a class axis.
+    """
+    if spec.material_set.density_count == 1:
+        return {}
+    return {"density_index": density_index, "density_mult": summary["density_mult"]}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -80,7 +80,7 @@ from .metrics import (
     confusion_matrix,
 )
 from .report import confusion_png, markdown_table, scatter_png, wind_label, write_json, write_text
-from .scores import CORRELATED_SCORES, SCORE_NAMES, material_scores
+from .scores import SCORE_NAMES, correlated_scores, material_scores
 
 __all__ = [
     "check_class_count",
@@ -117,6 +117,21 @@ def checkpoint_class_count(module: MaterialClassifierModule) -> int | None:
     config = module.hparams.get("net_config") or {}
     count = config.get("num_classes") if hasattr(config, "get") else None
     return None if count is None else int(count)
+
+
+def _score_definition(grid: ClassGrid) -> str:
+    """The scores' definitions in one sentence (``real.json``'s ``score_definition``)."""
+    ids = f"stretch_index * {grid.bend_count} + bend_index"
+    if grid.density_count > 1:
+        ids = f"({ids}) * {grid.density_count} + density_index"
+    text = (
+        f"material_score = sum_c p_c * c over the {grid.num_classes} classes (class id = {ids}, "
+        f"a stiffness ordering); stretch_score, bend_score = expected stretch "
+        f"(0..{grid.stretch_count - 1}) and bend (0..{grid.bend_count - 1}) index"
+    )
+    if grid.density_count > 1:
+        text += f"; density_score = expected density index (0..{grid.density_count - 1})"
+    return text + "; p averaged over a video's clips"
 
 
 def dataset_grid(data_dir: str | Path) -> ClassGrid:
@@ -454,7 +469,7 @@ def evaluate_real(
                 ).to_json()
                 for column in columns
             }
-            for score in CORRELATED_SCORES
+            for score in correlated_scores(grid)
         }
     correlations = {
         name: {column: by_score["material_score"][column] for column in columns}
@@ -465,7 +480,7 @@ def evaluate_real(
     slugs = _file_slugs(columns)
     scatter = {}
     winds = [v["wind"] for v in per_video]
-    for score in CORRELATED_SCORES:
+    for score in correlated_scores(grid):
         for column in columns:
             c = score_correlations["all"][score][column]
             path = out / f"scatter_{score}_vs_{slugs[column]}.png"
@@ -489,7 +504,7 @@ def evaluate_real(
         "checkpoint": None if checkpoint is None else str(checkpoint),
         "real_dir": str(real_dir),
         "columns": list(columns),
-        "scores": list(CORRELATED_SCORES),
+        "scores": list(correlated_scores(grid)),
         "videos": dataset.used_count,
         "videos_listed": len(dataset.videos),
         "videos_used": dataset.used_count,
@@ -503,10 +518,7 @@ def evaluate_real(
         "bootstrap_seed": seed,
         "bootstrap_unit": "group",
         "p_value": "two-sided t-test of r with groups - 2 degrees of freedom",
-        "score_definition": f"material_score = sum_c p_c * c over the {grid.num_classes} "
-        f"classes (class id = stretch_index * {grid.bend_count} + bend_index, a stiffness "
-        f"ordering); stretch_score, bend_score = expected stretch (0..{grid.stretch_count - 1}) "
-        f"and bend (0..{grid.bend_count - 1}) index; p averaged over a video's clips",
+        "score_definition": _score_definition(grid),
         "correlations": correlations,
         "score_correlations": score_correlations,
         "scatter": scatter,
@@ -590,7 +602,12 @@ def _real_markdown(
         f"expected class id 0..{grid.num_classes - 1} (stretch-major stiffness ordering: the "
         "thesis's predicted class number), `stretch_score` = expected stretch index "
         f"0..{grid.stretch_count - 1}, `bend_score` = expected bend index "
-        f"0..{grid.bend_count - 1}.\n"
+        f"0..{grid.bend_count - 1}"
+        + (
+            f", `density_score` = expected density index 0..{grid.density_count - 1}.\n"
+            if grid.density_count > 1
+            else ".\n"
+        )
     )
     header = [
         "input",

@@ -1,4 +1,4 @@
-"""Classification metrics over the stretch x bend class grid (thesis Table 7.2 and more).
+"""Classification metrics over the stretch x bend (x density) class grid (thesis Table 7.2).
 
 Pure torch functions of logits ``(N, classes)`` and labels ``(N,)``; the Lightning module and
 the evaluation entry both use them, so training logs and reports agree. The grid is a
@@ -22,10 +22,15 @@ __all__ = [
 ]
 
 
-def grid_position(classes: torch.Tensor, grid: ClassGrid) -> tuple[torch.Tensor, torch.Tensor]:
-    """Class ids -> (stretch index, bend index) in ``grid``."""
-    return torch.div(classes, grid.bend_count, rounding_mode="floor"), torch.remainder(
-        classes, grid.bend_count
+def grid_position(
+    classes: torch.Tensor, grid: ClassGrid
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Class ids -> (stretch index, bend index, density index) in ``grid``."""
+    cells = torch.div(classes, grid.density_count, rounding_mode="floor")
+    return (
+        torch.div(cells, grid.bend_count, rounding_mode="floor"),
+        torch.remainder(cells, grid.bend_count),
+        torch.remainder(classes, grid.density_count),
     )
 
 
@@ -43,8 +48,9 @@ def classification_metrics(
     """Top-1/top-5 accuracy, stretch- and bend-factor accuracy and grid errors.
 
     ``grid_mae`` is the mean L1 distance between the true and predicted cells of the
-    stretch x bend grid (|d stretch index| + |d bend index|); ``stretch_mae`` and ``bend_mae``
-    are its two parts. Accuracies are fractions in [0, 1].
+    grid (|d stretch index| + |d bend index| + |d density index|); ``stretch_mae`` and
+    ``bend_mae`` are its parts, and a grid of several densities adds ``density_acc`` and
+    ``density_mae``. Accuracies are fractions in [0, 1].
     """
     classes = grid.num_classes
     if logits.ndim != 2 or logits.shape[1] != classes or labels.shape != logits.shape[:1]:
@@ -57,19 +63,23 @@ def classification_metrics(
     labels = labels.long()
     predicted = logits.argmax(dim=1)
     top5 = logits.topk(min(5, classes), dim=1).indices
-    true_s, true_b = grid_position(labels, grid)
-    pred_s, pred_b = grid_position(predicted, grid)
-    stretch_err = (true_s - pred_s).abs().double()
-    bend_err = (true_b - pred_b).abs().double()
-    return {
+    true = grid_position(labels, grid)
+    pred = grid_position(predicted, grid)
+    errors = [(t - p).abs().double() for t, p in zip(true, pred, strict=True)]
+    stretch_err, bend_err, density_err = errors
+    out = {
         "acc": (predicted == labels).double().mean().item(),
         "top5": (top5 == labels[:, None]).any(dim=1).double().mean().item(),
         "stretch_acc": (stretch_err == 0).double().mean().item(),
         "bend_acc": (bend_err == 0).double().mean().item(),
-        "grid_mae": (stretch_err + bend_err).mean().item(),
+        "grid_mae": (stretch_err + bend_err + density_err).mean().item(),
         "stretch_mae": stretch_err.mean().item(),
         "bend_mae": bend_err.mean().item(),
     }
+    if grid.density_count > 1:
+        out["density_acc"] = (density_err == 0).double().mean().item()
+        out["density_mae"] = density_err.mean().item()
+    return out
 
 
 BREAKDOWNS = {"by_wind_level": "wind_level", "by_clip_index": "clip_index"}

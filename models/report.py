@@ -109,8 +109,8 @@ def scatter_png(
 def confusion_png(path: str | Path, matrix: np.ndarray, title: str, grid: ClassGrid) -> None:
     """Write the confusion matrix over ``grid``'s classes (54 x 54 for the thesis's) as a PNG.
 
-    Rows are true classes, columns predicted, row-normalised; the stretch blocks of bend
-    classes (6 blocks of 9 for the thesis's grid) are outlined.
+    Rows are true classes, columns predicted, row-normalised; the stretch blocks of bend (and
+    density) classes (6 blocks of 9 for the thesis's grid) are outlined.
     """
     import matplotlib
 
@@ -120,7 +120,7 @@ def confusion_png(path: str | Path, matrix: np.ndarray, title: str, grid: ClassG
     counts = np.asarray(matrix, dtype=np.float64)
     rows = counts.sum(axis=1, keepdims=True)
     share = np.divide(counts, rows, out=np.zeros_like(counts), where=rows > 0)
-    bends = grid.bend_count
+    bends = grid.bend_count * grid.density_count  # classes per stretch block
     fig, ax = plt.subplots(figsize=(7.5, 6.5), dpi=110)
     image = ax.imshow(share, cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest")
     for edge in range(bends, counts.shape[0], bends):

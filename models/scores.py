@@ -12,11 +12,15 @@ our definitions:
   ``predicted_class``; the expectation is the smooth version that Pearson r can use well);
 * ``stretch_score`` = expected stretch index in [0, stretch_count - 1]; ``bend_score`` =
   expected bend index in [0, bend_count - 1] (bend is what Bouman et al.'s "stiffness"
-  measures most directly).
+  measures most directly);
+* ``density_score`` = expected density index in [0, density_count - 1], for a grid of several
+  densities only.
 
-A set has one areal density (its basis fabric's; camel-ponte-roma's 0.284 kg/m² for the
-thesis's), so there is no density class: as in the thesis, density is correlated with
-``material_score``. A video's scores are its clips' probabilities averaged first, then scored.
+The thesis's set has one areal density (its basis fabric's; camel-ponte-roma's 0.284 kg/m²),
+so there is no density class: as in the thesis, density is correlated with
+``material_score``. A set with ``density_multipliers`` makes density a class axis of its own,
+and then ``density_score`` is the score to hold against measured density. A video's scores are
+its clips' probabilities averaged first, then scored.
 """
 
 from __future__ import annotations
@@ -27,13 +31,36 @@ from common.grid import ClassGrid
 
 from .metrics import grid_position
 
-__all__ = ["CORRELATED_SCORES", "SCORE_NAMES", "material_scores"]
+__all__ = [
+    "CORRELATED_SCORES",
+    "SCORE_NAMES",
+    "correlated_scores",
+    "density_score_name",
+    "material_scores",
+]
 
-SCORE_NAMES = ("material_score", "stretch_score", "bend_score", "predicted_class")
+SCORE_NAMES = ("material_score", "stretch_score", "bend_score", "predicted_class", "density_score")
 CORRELATED_SCORES = ("material_score", "stretch_score", "bend_score")
-"""Scores correlated with each measured column of a real set. ``predicted_class`` (the argmax)
-is a coarse copy of ``material_score`` and is left out; there is no density score (one
-density in the subspace), so density is correlated with each of these, as in the thesis."""
+"""Scores correlated with each measured column of a real set whose grid has one density.
+``predicted_class`` (the argmax) is a coarse copy of ``material_score`` and is left out; there
+is no density score then, so density is correlated with each of these, as in the thesis."""
+
+
+def correlated_scores(grid: ClassGrid) -> tuple[str, ...]:
+    """The scores to correlate for ``grid``.
+
+    :data:`CORRELATED_SCORES`, and ``density_score`` when the grid has several densities.
+    """
+    return (*CORRELATED_SCORES, "density_score") if grid.density_count > 1 else CORRELATED_SCORES
+
+
+def density_score_name(grid: ClassGrid) -> str:
+    """The score to hold against measured density.
+
+    ``density_score`` where the grid has a density axis, else ``material_score`` (the thesis's
+    choice for its one-density grid).
+    """
+    return "density_score" if grid.density_count > 1 else "material_score"
 
 
 def material_scores(probs: torch.Tensor, grid: ClassGrid) -> dict[str, torch.Tensor]:
@@ -42,10 +69,13 @@ def material_scores(probs: torch.Tensor, grid: ClassGrid) -> dict[str, torch.Ten
     if probs.ndim != 2 or probs.shape[1] != count:
         raise ValueError(f"probs must have shape (N, {count}), got {tuple(probs.shape)}")
     classes = torch.arange(count, device=probs.device)
-    stretch, bend = grid_position(classes, grid)
-    return {
+    stretch, bend, density = grid_position(classes, grid)
+    out = {
         "material_score": probs @ classes.to(probs.dtype),
         "stretch_score": probs @ stretch.to(probs.dtype),
         "bend_score": probs @ bend.to(probs.dtype),
         "predicted_class": probs.argmax(dim=1).to(probs.dtype),
     }
+    if grid.density_count > 1:
+        out["density_score"] = probs @ density.to(probs.dtype)
+    return out

@@ -169,7 +169,9 @@ def _effective_stretch(stretching: np.ndarray) -> float:
 
 
 MATERIAL_SET_FIELDS = ("name", "basis", "stretch_multipliers", "bend_multipliers")
-GRID_FIELDS = ("num_classes", "stretch_count", "bend_count")
+OPTIONAL_FIELDS = ("density_multipliers",)
+"""Fields a set may leave out: one density (the basis's) without ``density_multipliers``."""
+GRID_FIELDS = ("num_classes", "stretch_count", "bend_count", "density_count")
 """The grid's counts, written by :meth:`MaterialSet.to_json` beside the fields (checked when
 read back)."""
 
@@ -193,9 +195,11 @@ def _multiplier_list(values: Any, field: str) -> tuple[float, ...]:
 class MaterialSet:
     """The classes of a dataset: one basis fabric with its stretching x p and bending x k.
 
-    Class ids run stretch-major over the grid of the two multiplier lists,
-    ``class_id = stretch_index * bend_count + bend_index``; both lists are strictly
-    increasing, so a larger id is generally stiffer. Density is the basis's for every class.
+    Class ids run stretch-major over the grid of the multiplier lists,
+    ``class_id = (stretch_index * bend_count + bend_index) * density_count + density_index``;
+    every list is strictly increasing, so a larger id is generally stiffer. The areal density
+    is the basis's times each of ``density_multipliers`` (default: the basis's alone, the
+    thesis's 54 classes, where ``class_id = stretch_index * bend_count + bend_index``).
     """
 
     name: str
@@ -206,6 +210,8 @@ class MaterialSet:
     """p of each stretch index, increasing."""
     bend_multipliers: tuple[float, ...]
     """k of each bend index, increasing."""
+    density_multipliers: tuple[float, ...] = (1.0,)
+    """q of each density index, increasing: the class's areal density is the basis's x q."""
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name.strip():
@@ -214,14 +220,14 @@ class MaterialSet:
             raise MaterialError(
                 f"material_set.basis must be one of {wang_material_names()}, got {self.basis!r}"
             )
-        for field in ("stretch_multipliers", "bend_multipliers"):
+        for field in ("stretch_multipliers", "bend_multipliers", "density_multipliers"):
             numbers = _multiplier_list(getattr(self, field), f"material_set.{field}")
             object.__setattr__(self, field, numbers)
 
     @property
     def grid(self) -> ClassGrid:
-        """The stretch x bend grid of class ids, as a classifier sees it."""
-        return ClassGrid(self.stretch_multipliers, self.bend_multipliers)
+        """The stretch x bend x density grid of class ids, as a classifier sees it."""
+        return ClassGrid(self.stretch_multipliers, self.bend_multipliers, self.density_multipliers)
 
     @property
     def stretch_count(self) -> int:
@@ -234,8 +240,13 @@ class MaterialSet:
         return self.grid.bend_count
 
     @property
+    def density_count(self) -> int:
+        """Density indices (1 unless ``density_multipliers`` has more)."""
+        return self.grid.density_count
+
+    @property
     def num_classes(self) -> int:
-        """Classes: ``stretch_count * bend_count``."""
+        """Classes: ``stretch_count * bend_count * density_count``."""
         return self.grid.num_classes
 
     def to_json(self) -> dict:
@@ -251,60 +262,77 @@ class MaterialSet:
         """
         if not isinstance(data, Mapping):
             raise MaterialError(f"{field} must be a mapping with {list(MATERIAL_SET_FIELDS)}")
-        unknown = sorted(set(data) - {*MATERIAL_SET_FIELDS, *GRID_FIELDS})
+        unknown = sorted(set(data) - {*MATERIAL_SET_FIELDS, *OPTIONAL_FIELDS, *GRID_FIELDS})
         missing = [k for k in MATERIAL_SET_FIELDS if k not in data]
         if unknown or missing:
             raise MaterialError(
                 f"{field} needs {list(MATERIAL_SET_FIELDS)}; unknown {unknown}, missing {missing}"
             )
         try:
-            out = cls(*(data[k] for k in MATERIAL_SET_FIELDS))
+            optional = {k: data[k] for k in OPTIONAL_FIELDS if k in data}
+            out = cls(*(data[k] for k in MATERIAL_SET_FIELDS), **optional)
         except MaterialError as err:
             raise MaterialError(str(err).replace("material_set", field, 1)) from None
         stored = {k: data[k] for k in GRID_FIELDS if k in data}
-        grid = {k: v for k, v in out.to_json().items() if k in stored}
+        counts = {**out.to_json(), "density_count": out.density_count}
+        grid = {k: v for k, v in counts.items() if k in stored}
         if stored != grid:
             raise MaterialError(f"{field}: counts {stored} do not match its multipliers {grid}")
         return out
 
+    def position(self, class_id: int) -> tuple[int, int, int]:
+        """(stretch index, bend index, density index) of a class id."""
+        try:
+            return self.grid.position(class_id)
+        except ValueError as err:
+            raise MaterialError(str(err)) from None
+
     def multipliers(self, class_id: int) -> tuple[float, float]:
         """(stretch multiplier p, bend multiplier k) of a class id."""
-        top = self.num_classes - 1
-        if not isinstance(class_id, int | np.integer) or not 0 <= int(class_id) <= top:
-            raise MaterialError(f"class_id must be an integer in [0, {top}], got {class_id!r}")
-        s, b = divmod(int(class_id), self.bend_count)
+        s, b, _ = self.position(class_id)
         return self.stretch_multipliers[s], self.bend_multipliers[b]
 
-    def class_of(self, stretch_mult: float, bend_mult: float) -> int:
-        """Class id of an exact (p, k) pair of the grid."""
+    def density_mult(self, class_id: int) -> float:
+        """Density multiplier q of a class id (1.0 in a set of one density)."""
+        return self.density_multipliers[self.position(class_id)[2]]
+
+    def class_of(self, stretch_mult: float, bend_mult: float, density_mult: float = 1.0) -> int:
+        """Class id of an exact (p, k, q) triple of the grid (q = 1 in a set of one density)."""
         try:
             s = self.stretch_multipliers.index(float(stretch_mult))
             b = self.bend_multipliers.index(float(bend_mult))
+            d = self.density_multipliers.index(float(density_mult))
         except ValueError as err:
             raise MaterialError(
-                f"(stretch_mult, bend_mult) = ({stretch_mult}, {bend_mult}) is not in the "
-                f"subspace; allowed stretch {self.stretch_multipliers}, bend "
-                f"{self.bend_multipliers}"
+                f"(stretch_mult, bend_mult, density_mult) = ({stretch_mult}, {bend_mult}, "
+                f"{density_mult}) is not in the subspace; allowed stretch "
+                f"{self.stretch_multipliers}, bend {self.bend_multipliers}, density "
+                f"{self.density_multipliers}"
             ) from err
-        return s * self.bend_count + b
+        return self.grid.class_id(s, b, d)
 
-    def nearest(self, stretch_ratio: float, bend_ratio: float) -> tuple[int, float, float]:
+    def nearest(
+        self, stretch_ratio: float, bend_ratio: float, density_ratio: float = 1.0
+    ) -> tuple[int, float, float]:
         """Quantise estimated ratios to the grid (nearest in log scale): (class id, p, k)."""
         p = _nearest_log(stretch_ratio, self.stretch_multipliers)
         k = _nearest_log(bend_ratio, self.bend_multipliers)
-        return self.class_of(p, k), p, k
+        q = _nearest_log(density_ratio, self.density_multipliers)
+        return self.class_of(p, k, q), p, k
 
     def summary(self, class_id: int, basis: WangMaterial | None = None) -> dict[str, float]:
         """Physical summary values of a class (see :func:`class_summary`)."""
         basis = basis or load_wang_material(self.basis)
         p, k = self.multipliers(class_id)
+        q = self.density_mult(class_id)
         return {
             "class_id": int(class_id),
             "stretch_mult": p,
             "bend_mult": k,
+            "density_mult": q,
             "stretch_stiffness": p * _effective_stretch(basis.stretching),
             "bend_stiffness": k * float(basis.bending.mean()),
-            "density": basis.density,
+            "density": q * basis.density,
         }
 
     def materials(self, class_ids, *, dtype: torch.dtype = torch.float64) -> ClothMaterial:
@@ -319,6 +347,7 @@ class MaterialSet:
             load_wang_material(self.basis),
             stretch_mult=[p for p, _ in pk],
             bend_mult=[k for _, k in pk],
+            density_mult=[self.density_mult(c) for c in ids],
             dtype=dtype,
         )
 
@@ -405,30 +434,34 @@ class ClothMaterial:
         *,
         stretch_mult: list[float] | float = 1.0,
         bend_mult: list[float] | float = 1.0,
+        density_mult: list[float] | float = 1.0,
         dtype: torch.dtype = torch.float64,
     ) -> ClothMaterial:
         """Batch fabrics with per-instance multipliers (broadcast to a common length)."""
         mats = [materials] if isinstance(materials, WangMaterial) else list(materials)
         ps = np.atleast_1d(np.asarray(stretch_mult, dtype=np.float64))
         ks = np.atleast_1d(np.asarray(bend_mult, dtype=np.float64))
-        batch = max(len(mats), len(ps), len(ks))
+        qs = np.atleast_1d(np.asarray(density_mult, dtype=np.float64))
+        batch = max(len(mats), len(ps), len(ks), len(qs))
         for name, n in (
             ("materials", len(mats)),
             ("stretch_mult", len(ps)),
             ("bend_mult", len(ks)),
+            ("density_mult", len(qs)),
         ):
             if n not in (1, batch):
                 raise MaterialError(f"{name}: length {n} does not broadcast to batch {batch}")
-        for name, arr in (("stretch_mult", ps), ("bend_mult", ks)):
+        for name, arr in (("stretch_mult", ps), ("bend_mult", ks), ("density_mult", qs)):
             if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
                 raise MaterialError(f"{name} must be > 0, got {arr.tolist()}")
         mats = mats * batch if len(mats) == 1 else mats
         ps = np.broadcast_to(ps, (batch,))
         ks = np.broadcast_to(ks, (batch,))
+        qs = np.broadcast_to(qs, (batch,))
         pairs = zip(mats, ps, strict=True)
         stretching = np.stack([stabilize_stretching(m.stretching) * p for m, p in pairs])
         bending = np.stack([m.bending * k for m, k in zip(mats, ks, strict=True)])
-        density = np.array([m.density for m in mats])
+        density = np.array([m.density * q for m, q in zip(mats, qs, strict=True)])
         return ClothMaterial(
             torch.as_tensor(stretching, dtype=dtype),
             torch.as_tensor(bending, dtype=dtype),

@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -27,6 +28,8 @@ from simulator.cloth.material import (
     MaterialError,
     MaterialSet,
     class_summary,
+    load_wang_material,
+    wang_material_names,
 )
 from simulator.cloth.scenes import ScenarioWind
 
@@ -172,3 +175,70 @@ def test_a_dataset_of_another_set_is_labelled_by_it(tmp_path):
         assert (clip["stretch_index"], clip["bend_index"]) == (clip["class_id"], 0)
         assert clip["stretch_stiffness"] == summary["stretch_stiffness"]
     assert ClothVideoDataModule(tmp_path / "two").class_grid["num_classes"] == 2
+
+
+DENSE = MaterialSet("dense", BASIS_MATERIAL, (1.0, 10.0), (0.5, 2.0), (0.5, 1.0, 2.0))
+"""A 2 x 2 x 3 grid: class id = (stretch_index * 2 + bend_index) * 3 + density_index."""
+
+
+def test_a_density_axis_orders_ids_density_last_and_scales_the_density():
+    assert DENSE.num_classes == 12 and DENSE.grid.describe().startswith("12 (the 2 x 2 x 3")
+    assert DENSE.position(7) == (1, 0, 1) and DENSE.grid.class_id(1, 0, 1) == 7
+    assert [DENSE.position(c) for c in range(12)] == [
+        (s, b, d) for s in range(2) for b in range(2) for d in range(3)
+    ]
+    assert DENSE.multipliers(7) == (10.0, 0.5) and DENSE.density_mult(7) == 1.0
+    assert DENSE.class_of(10.0, 2.0, 2.0) == 11 and DENSE.nearest(9.0, 0.6, 0.4)[0] == 6
+    basis = class_summary(0)["density"]
+    summaries = [DENSE.summary(c) for c in (6, 7, 8)]
+    assert [s["density"] for s in summaries] == pytest.approx([0.5 * basis, basis, 2 * basis])
+    assert {s["stretch_stiffness"] for s in summaries} == {DENSE.summary(6)["stretch_stiffness"]}
+    materials = DENSE.materials([6, 7, 8])
+    assert materials.density.tolist() == pytest.approx([0.5 * basis, basis, 2 * basis])
+    assert torch.equal(materials.stretching[0], materials.stretching[2])
+    with pytest.raises(MaterialError, match=r"class_id must be an integer in \[0, 11\]"):
+        DENSE.density_mult(12)
+    with pytest.raises(MaterialError, match=r"density \(0.5, 1.0, 2.0\)"):
+        DENSE.class_of(1.0, 0.5, 3.0)
+
+
+def test_a_density_axis_round_trips_and_one_density_keeps_the_old_keys():
+    data = json.loads(json.dumps(DENSE.to_json()))
+    assert data["density_multipliers"] == [0.5, 1.0, 2.0] and data["density_count"] == 3
+    assert MaterialSet.from_json(data) == DENSE
+    assert "density_multipliers" not in TWO.to_json() and "density_count" not in WANG54.to_json()
+    with pytest.raises(MaterialError, match="counts"):
+        MaterialSet.from_json({**data, "density_count": 2})
+    with pytest.raises(MaterialError, match=r"material_set\.density_multipliers must be"):
+        MaterialSet("x", BASIS_MATERIAL, (1.0,), (1.0,), (2.0, 1.0))
+    spec = tiny_spec(classes=None, material_set=DENSE)
+    assert spec.classes == tuple(range(12))
+    back = DatasetSpec.from_json(json.loads(json.dumps(spec.to_json())))
+    assert back == spec and back.physics_key() == spec.physics_key()
+    # a one-density set writes the spec keys it wrote before density was an axis
+    assert (
+        "density_multipliers"
+        not in tiny_spec(classes=None, material_set=TWO).to_json()["material_set"]
+    )
+    node = OmegaConf.to_container(OmegaConf.load(ROOT / "configs/material_set/wang162.yaml"))
+    wang162 = MaterialSet.from_json(node)
+    assert wang162.num_classes == 162 and wang162.multipliers(3 * 53 + 2) == (20.0, 20.0)
+    fabrics = [load_wang_material(n).density for n in wang_material_names()]
+    lightest, heaviest = (wang162.summary(c)["density"] for c in (0, 2))
+    assert lightest <= 1.05 * min(fabrics) and heaviest >= max(fabrics)
+    cfg = _compose("material_set=wang162", "classes=[161]")
+    assert spec_from_config(cfg).material_set == wang162
+
+
+@pytest.mark.render
+def test_a_dataset_with_a_density_axis_labels_each_clip_with_its_density(tmp_path):
+    spec = dataclasses.replace(tiny_spec(), classes=(0, 2), material_set=DENSE)
+    manifest = generate_dataset(spec, tmp_path / "dense", progress=False)
+    assert manifest is not None and manifest.material_set == DENSE
+    basis = class_summary(0)["density"]
+    for clip in manifest.clips:
+        assert clip["density_index"] == clip["class_id"]  # classes 0 and 2: densities 0, 2
+        assert clip["density"] == pytest.approx(DENSE.density_mult(clip["class_id"]) * basis)
+        assert (clip["stretch_index"], clip["bend_index"]) == (0, 0)
+    module = ClothVideoDataModule(tmp_path / "dense")
+    assert module.num_classes == 12 and module.class_grid["density_count"] == 3

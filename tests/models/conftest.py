@@ -55,18 +55,26 @@ TINY_NET = {
 }
 
 
-def write_checkpoint(path, classes=54):
-    """An untrained CNN+LSTM checkpoint in train.py's format, predicting ``classes`` classes."""
+def write_checkpoint(path, classes=54, grid=None):
+    """An untrained CNN+LSTM checkpoint in train.py's format, predicting ``classes`` classes.
+
+    ``grid`` (a :class:`~common.grid.ClassGrid`) is recorded as its ``class_grid`` and sets the
+    class count; without it the checkpoint records none (read as ``wang54``'s).
+    """
     import torch
     from hydra.utils import instantiate
 
     from models.material_classifier import MaterialClassifierModule
 
+    if grid is not None:
+        classes = grid.num_classes
     config = {**TINY_NET, "num_classes": classes}
     torch.manual_seed(0)
     module = MaterialClassifierModule(instantiate(config), net_config=config, method="tiny")
     path.parent.mkdir(parents=True, exist_ok=True)
     hparams = {"net_config": config, "method": "tiny"}
+    if grid is not None:
+        hparams["class_grid"] = grid.to_json()
     torch.save({"hyper_parameters": hparams, "state_dict": module.state_dict()}, path)
     return path
 

@@ -91,6 +91,22 @@ def test_every_score_meets_every_chosen_column_with_fabric_groups(run_dir, fabri
     assert json.loads((folder / "real.json").read_text())["videos_skipped"] == 1
 
 
+def test_a_model_with_a_density_axis_gets_a_density_score(tmp_path, fabric_folder):
+    run = tmp_path / "logs" / "train" / "dense-cnn_lstm"
+    grid = ClassGrid((1.0, 2.0), (1.0, 3.0, 9.0), (0.5, 1.0, 2.0))
+    ckpt = write_checkpoint(run / "checkpoints" / "best.ckpt", grid=grid)
+    results = evaluate.run(_cfg(f"ckpt_path={ckpt}", f"real_dir={fabric_folder}"))
+    real, folder = results["real"], Path(results["out_dir"])
+    assert real["scores"] == [*CORRELATED_SCORES, "density_score"]
+    by_column = real["score_correlations"]["all"]["density_score"]
+    assert set(by_column) == {"stiffness", "density"} and by_column["density"]["count"] == 18
+    scores = [v["density_score"] for v in real["per_video"]]
+    assert all(0.0 <= s <= 2.0 for s in scores) and len(set(scores)) > 1
+    assert (folder / real["scatter"]["density_score"]["density"]).is_file()
+    assert "`density_score` = expected density index 0..2" in (folder / "real.md").read_text()
+    assert "(stretch_index * 3 + bend_index) * 3 + density_index" in real["score_definition"]
+
+
 def test_each_evaluation_gets_its_own_folder(run_dir, fabric_folder):
     ckpt = run_dir / "checkpoints" / "best.ckpt"
     training_report = (run_dir / "eval" / "sim_test.json").read_bytes()

@@ -8,7 +8,7 @@ from scipy import stats
 from common.grid import ClassGrid
 from models.correlation import correlate
 from models.metrics import breakdown_metrics, classification_metrics, confusion_matrix
-from models.scores import material_scores
+from models.scores import correlated_scores, density_score_name, material_scores
 from simulator.cloth.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
 
 GRID = ClassGrid(STRETCH_MULTIPLIERS, BEND_MULTIPLIERS)
@@ -138,3 +138,29 @@ def test_metrics_and_scores_follow_the_grid_they_are_given():
     with pytest.raises(ValueError, match="class_grid must have stretch_multipliers"):
         ClassGrid.from_json({"num_classes": 6})
     assert ClassGrid.from_json(GRID.to_json()) == GRID and GRID.num_classes == 54
+
+
+def test_a_density_axis_adds_density_metrics_and_a_density_score():
+    grid = ClassGrid((1.0, 2.0), (1.0, 3.0), (0.5, 1.0, 2.0))  # ids (s * 2 + b) * 3 + d
+    assert grid.position(7) == (1, 0, 1) and grid.class_id(1, 1, 2) == 11
+    assert ClassGrid.from_json(grid.to_json()) == grid
+    assert "density_count" not in GRID.to_json() and ClassGrid.from_json(GRID.to_json()) == GRID
+    with pytest.raises(ValueError, match="counts"):
+        ClassGrid.from_json({**grid.to_json(), "density_count": 1})
+    # true (s, b, d): 7 -> (1,0,1), 2 -> (0,0,2); predicted 8 -> (1,0,2), 2 exact
+    labels = torch.tensor([7, 2])
+    logits = torch.zeros(2, 12)
+    logits[0, 8] = logits[1, 2] = 1.0
+    m = classification_metrics(logits, labels, grid)
+    assert (m["acc"], m["stretch_acc"], m["bend_acc"], m["density_acc"]) == (0.5, 1.0, 1.0, 0.5)
+    assert m["density_mae"] == pytest.approx(0.5) and m["grid_mae"] == pytest.approx(0.5)
+    assert "density_acc" not in classification_metrics(_logits([0]), torch.tensor([0]), GRID)
+    probs = torch.nn.functional.one_hot(torch.tensor([7, 2, 11]), 12).double()
+    scores = material_scores(probs, grid)
+    assert scores["density_score"].tolist() == [1, 2, 2]
+    assert scores["stretch_score"].tolist() == [1, 0, 1]
+    assert scores["bend_score"].tolist() == [0, 0, 1]
+    assert correlated_scores(grid)[-1] == "density_score" == density_score_name(grid)
+    assert "density_score" not in material_scores(torch.full((1, 54), 1 / 54), GRID)
+    assert density_score_name(GRID) == "material_score"
+    assert "density_score" not in correlated_scores(GRID)

@@ -355,3 +355,27 @@ def test_float32_matches_float64():
     f32 = _run(scene, [3, 44], record_time=0.2, settings=SimSettings(dtype="float32"))
     assert np.isfinite(f32.pos).all()
     assert np.abs(f32.pos - f64.pos).max() < 2e-3, np.abs(f32.pos - f64.pos).max()
+
+
+def test_density_scales_like_inverse_stiffness_at_rest_and_lighter_cloth_flutters_more():
+    # Static hang under gravity alone: K(x) = rho g, so rho x q sags as stiffness / q does.
+    basis = load_wang_material("camel-ponte-roma")
+    heavy = stretch_test(ClothMaterial.from_wang(basis, density_mult=[1.0, 2.0, 4.0])).numpy()
+    soft = stretch_test(
+        ClothMaterial.from_wang(basis, stretch_mult=[1.0, 0.5, 0.25], bend_mult=[1.0, 0.5, 0.25])
+    ).numpy()
+    assert (np.diff(heavy) > 0).all(), heavy
+    np.testing.assert_allclose(heavy, soft, rtol=1e-3)
+    # In wind (a force per area, not per mass) the lighter cloth moves more.
+    scene = ScenarioWind(resolution_level=1, settle_time=0.05)
+    seq = simulate(
+        scene,
+        ClothMaterial.from_wang(basis, density_mult=[0.4, 1.2]),
+        seeds=[3, 3],
+        wind_levels=[2, 2],
+        fps=30,
+        record_time=0.4,
+        labels=[0, 1],
+    )
+    speed = np.linalg.norm(np.diff(seq.pos, axis=1), axis=-1).mean(axis=(1, 2))
+    assert speed[0] > 1.2 * speed[1], speed
