@@ -29,10 +29,15 @@ ROOT = Path(__file__).resolve().parents[1]
 LOOP_PAIRS = (
     ("bend_score", "stiffness"),
     ("stretch_score", "stretch_stiffness"),
-    ("material_score", "density"),
+    ("density_score", "density"),
 )
 """(score, measured column) pairs whose pooled Pearson r the closed loop must raise; the
-independent engine's ``stiffness`` is the bending multiplier, ``stretch_stiffness`` [N/m]."""
+independent engine's ``stiffness`` is the bending multiplier, ``stretch_stiffness`` [N/m].
+A model whose classes have one density has no ``density_score``; ``material_score`` (the
+thesis's choice) stands in for it then (:data:`STAND_INS`)."""
+
+STAND_INS = {"density_score": "material_score"}
+"""Score -> the score used where a report has none of the first (a one-density class grid)."""
 
 TARGETS = {
     "multi_sets": (">=", 24),
@@ -82,16 +87,23 @@ def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
             "--loop: the report has no shrink section with every score's "
             "correlations; run python -m sim2real.shrink on it first"
         )
-    out = {}
-    for score, column in pairs:
+
+    def scored(label: str, score: str, column: str) -> tuple[str, dict]:
+        pooled = every[label]["all"]
+        if score not in pooled and score in STAND_INS:
+            score = STAND_INS[score]
         try:
-            before = every["before"]["all"][score][column]
-            after = every["after"]["all"][score][column]
+            return score, pooled[score][column]
         except KeyError:
             raise InputError(
                 f"--loop: no {score} vs {column} correlation; rerun shrink with "
                 f"columns=[...,{column}]"
             ) from None
+
+    out = {}
+    for name, column in pairs:
+        score, after = scored("after", name, column)
+        before_score, before = scored("before", name, column)
         entry = {
             "before": before["pearson"],
             "before_ci": before["pearson_ci"],
@@ -99,11 +111,15 @@ def loop_figures(report: dict, pairs=LOOP_PAIRS) -> dict:
             "after_ci": after["pearson_ci"],
             "gain": _gain(after["pearson"], before["pearson"]),
         }
+        if before_score != score:  # the model before had no such score (no density axis)
+            entry["before_score"] = before_score
         if "control" in every:
-            control = every["control"]["all"][score][column]
+            control_score, control = scored("control", name, column)
             entry["control"] = control["pearson"]
             entry["control_ci"] = control["pearson_ci"]
             entry["gain_over_control"] = _gain(after["pearson"], control["pearson"])
+            if control_score != score:
+                entry["control_score"] = control_score
         out[f"{score} vs {column}"] = entry
     return out
 

@@ -77,15 +77,19 @@ def simulate_unit(
     cache_dir: Path | None,
     *,
     on_step: Callable[[int, int], None] | None = None,
-    multipliers: tuple[Sequence[float], Sequence[float]] | None = None,
+    multipliers: tuple[Sequence[float], ...] | None = None,
 ) -> MeshSequence:
     """The unit's mesh sequence: from the cache when present, else simulated (and cached).
 
     ``on_step(step, total)`` follows the rollout (see :func:`simulator.cloth.rollout.simulate`).
-    ``multipliers`` = (stretch, bend) per simulation of the spec's basis fabric, instead of
-    the simulations' classes of its material set (the sim-to-real diagnosis draws continuous
-    materials); they are part of the cache key.
+    ``multipliers`` = (stretch, bend[, density]) per simulation of the spec's basis fabric,
+    instead of the simulations' classes of its material set (the sim-to-real diagnosis draws
+    continuous materials); they are part of the cache key (density only when it is not 1
+    everywhere, so the keys of the two-list form stand).
     """
+    if multipliers is not None and len(multipliers) == 3:
+        if all(float(v) == 1.0 for v in multipliers[2]):
+            multipliers = multipliers[:2]  # density 1 everywhere: the two-list form and its key
     path = None
     if cache_dir is not None:
         folder = spec.physics_key()
@@ -109,6 +113,7 @@ def simulate_unit(
             load_wang_material(spec.material_set.basis),
             stretch_mult=list(multipliers[0]),
             bend_mult=list(multipliers[1]),
+            density_mult=list(multipliers[2]) if len(multipliers) > 2 else 1.0,
         )
     seq = simulate(
         spec.scenario,

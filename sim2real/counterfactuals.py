@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from common.grid import ClassGrid
+
 from .ladder import LadderFeatures
 from .rungs import hand_rung, hand_rung_names
 from .stats import Gap, bootstrap_draws, domain_auc, gap_closed, mmd2_unbiased, standardize
@@ -332,40 +334,43 @@ def swap_closure(
     return out
 
 
-def group_scores(groups, logits: np.ndarray, stiffness, density) -> dict[str, np.ndarray]:
-    """Per-group (video or simulation) material scores from clip logits.
+def group_scores(
+    groups, logits: np.ndarray, stiffness, density, grid: ClassGrid
+) -> dict[str, np.ndarray]:
+    """Per-group (video or simulation) material scores from clip logits over ``grid``'s classes.
 
     Probabilities are averaged per group first, as :mod:`models.evaluate` does; the group's
     stiffness and density come along (means over its clips).
     """
     import torch
 
-    from models.scores import CORRELATED_SCORES, material_scores
-    from simulator.cloth.material import WANG54
+    from models.scores import correlated_scores, material_scores
 
     videos, rows = np.unique(np.asarray(groups), return_inverse=True)
     counts = np.bincount(rows)
     probs = torch.softmax(torch.as_tensor(logits), dim=1).numpy()
     mean = np.zeros((len(videos), probs.shape[1]))
     np.add.at(mean, rows, probs)
-    grid = WANG54.grid  # the diagnosis's classifiers are wang54's
     scores = material_scores(torch.as_tensor(mean / counts[:, None]), grid)
-    out = {name: scores[name].numpy() for name in CORRELATED_SCORES}
+    out = {name: scores[name].numpy() for name in correlated_scores(grid)}
     out["stiffness"] = np.bincount(rows, np.asarray(stiffness, dtype=float)) / counts
     out["density"] = np.bincount(rows, np.asarray(density, dtype=float)) / counts
     return out
 
 
-def score_correlations(real: LadderFeatures, logits: np.ndarray, *, seed: int = 0) -> dict:
+def score_correlations(
+    real: LadderFeatures, logits: np.ndarray, grid: ClassGrid, *, seed: int = 0
+) -> dict:
     """Spearman and Pearson (group bootstrap CIs) of each model score with each measured value."""
     from models.correlation import correlate
+    from models.scores import correlated_scores
 
-    per_video = group_scores(real.groups, logits, real.stiffness, real.density)
+    per_video = group_scores(real.groups, logits, real.stiffness, real.density, grid)
     return {
         f"{score}~{target}": correlate(
             per_video[score], per_video[target], rounds=1000, seed=seed
         ).to_json()
-        for score in ("material_score", "stretch_score", "bend_score")
+        for score in correlated_scores(grid)
         for target in ("stiffness", "density")
     }
 
@@ -375,6 +380,7 @@ def batchnorm_swap(
     real: LadderFeatures,
     real_adapted: LadderFeatures | None,
     gaps: dict[str, Gap],
+    grid: ClassGrid,
     *,
     rng: np.random.Generator,
 ) -> dict:
@@ -386,6 +392,7 @@ def batchnorm_swap(
         real_adapted: R through the network with batch-norm statistics re-estimated on R
             (``None``: the network has no batch-norm layer).
         gaps: S vs R per rung.
+        grid: The network's class grid (its scores' meaning).
         rng: Randomness of the domain classifier's folds.
     """
     if real_adapted is None:
@@ -397,7 +404,7 @@ def batchnorm_swap(
     }
     if "logits" in real.rungs and "logits" in real_adapted.rungs:
         out["correlations"] = {
-            "before": score_correlations(real, real.rungs["logits"]),
-            "after": score_correlations(real_adapted, real_adapted.rungs["logits"]),
+            "before": score_correlations(real, real.rungs["logits"], grid),
+            "after": score_correlations(real_adapted, real_adapted.rungs["logits"], grid),
         }
     return out

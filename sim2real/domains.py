@@ -27,13 +27,14 @@ from datasets.plan import SimulationPlan, WorkUnit, plan_units
 from datasets.real_video import RealVideoDataset, clip_starts
 from datasets.spec import DatasetSpec, SizePreset
 from render.effects import IMAGE_EFFECT_ORDER, apply_image_effects
-from simulator.cloth.material import BASIS_MATERIAL, load_wang_material, multipliers_from_class
+from simulator.cloth.material import load_wang_material
 from simulator.sequence import MeshSequence
 
 __all__ = ["ClipSet", "diagnosis_spec", "prior_materials", "real_clips", "simulated_clips"]
 
 _VIDEO_STREAM = 3  # the generator's clip stream; clip 0 of a simulation = its video
 _MATERIAL_STREAM = 11
+_DENSITY_STREAM = 12  # its own stream: adding density left the stretch and bend draws as they were
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,28 +103,42 @@ def diagnosis_spec(
     )
 
 
-def prior_materials(spec: DatasetSpec, unit: WorkUnit) -> tuple[np.ndarray, np.ndarray]:
-    """Stretch and bend multipliers (p, k) of the unit's simulations, drawn from the prior.
+def prior_materials(spec: DatasetSpec, unit: WorkUnit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stretch, bend and density multipliers (p, k, q) of the unit's simulations, from the prior.
 
-    The prior is log-uniform over the span of the training classes' multipliers, one draw
-    per simulation from its seed alone (so S and every S_e hold the same cloths). The
-    training classes are a grid over that span; a diagnosis set drawn from a grid is a
-    lumpy distribution that no real set of fabrics spread over the span matches, and the
-    difference shows up on the motion rung as a gap that damping-like candidates "close"
-    (measured on a sealed set with no effect at all).
+    The prior is log-uniform over the span of the training classes' multipliers (density: of
+    the material set's densities; q = 1 in a set of one density), one draw per simulation
+    from its seed alone (so S and every S_e hold the same cloths). The training classes are
+    a grid over that span; a diagnosis set drawn from a grid is a lumpy distribution that no
+    real set of fabrics spread over the span matches, and the difference shows up on the
+    motion rung as a gap that damping-like candidates "close" (measured on a sealed set with
+    no effect at all).
     """
-    multipliers = np.log([multipliers_from_class(c) for c in spec.classes])
+    materials = spec.material_set
+    multipliers = np.log([materials.multipliers(c) for c in spec.classes])
     low, high = multipliers.min(axis=0), multipliers.max(axis=0)
     draws = np.array(
         [np.random.default_rng([s.seed, _MATERIAL_STREAM]).uniform(low, high) for s in unit.sims]
     )
-    return np.exp(draws[:, 0]), np.exp(draws[:, 1])
+    densities = np.log(materials.density_multipliers)
+    q = np.ones(len(unit.sims))
+    if materials.density_count > 1:
+        q = np.exp(
+            [
+                np.random.default_rng([s.seed, _DENSITY_STREAM]).uniform(
+                    densities.min(), densities.max()
+                )
+                for s in unit.sims
+            ]
+        )
+    return np.exp(draws[:, 0]), np.exp(draws[:, 1]), q
 
 
-def _nearest_class(spec: DatasetSpec, p: float, k: float) -> int:
-    """The training class whose multipliers lie nearest (p, k) in log space."""
-    grid = np.log([multipliers_from_class(c) for c in spec.classes])
-    return int(spec.classes[int(np.argmin(((grid - np.log([p, k])) ** 2).sum(axis=1)))])
+def _nearest_class(spec: DatasetSpec, p: float, k: float, q: float) -> int:
+    """The training class whose multipliers lie nearest (p, k, q) in log space."""
+    materials = spec.material_set
+    grid = np.log([(*materials.multipliers(c), materials.density_mult(c)) for c in spec.classes])
+    return int(spec.classes[int(np.argmin(((grid - np.log([p, k, q])) ** 2).sum(axis=1)))])
 
 
 def simulated_clips(
@@ -154,15 +169,16 @@ def simulated_clips(
     """
     clip_len = clip_len or spec.preset.frames_per_clip
     clip_stride = clip_stride or clip_len
-    basis_density = load_wang_material(BASIS_MATERIAL).density
+    basis_density = load_wang_material(spec.material_set.basis).density
     base = None
     shared = render_cache is not None and not spec.visual.frame_rate
     if shared and any(getattr(spec.visual, n) for n in IMAGE_EFFECT_ORDER):
         base = dataclasses.replace(spec, visual=spec.visual.before_image_effects())
-    rows: dict[str, list] = {k: [] for k in ("frames", "coverage", "groups", "class_id", "k")}
+    names = ("frames", "coverage", "groups", "class_id", "k", "q")
+    rows: dict[str, list] = {name: [] for name in names}
     for unit in plan_units(spec):
-        p, k = prior_materials(spec, unit)
-        seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k))  # cached by physics
+        p, k, q = prior_materials(spec, unit)
+        seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k, q))  # cached by physics
         # key and materials: a visual or look candidate re-renders the nominal meshes
         capsules = seq.capsules
         start, stop = spec.lead_in_frames, spec.frames_per_sim
@@ -183,20 +199,20 @@ def simulated_clips(
                 rows["frames"].append(frames[first : first + clip_len])
                 rows["coverage"].append(coverage[first : first + clip_len])
                 rows["groups"].append(sim.sim_id)
-                rows["class_id"].append(_nearest_class(spec, p[b], k[b]))
+                rows["class_id"].append(_nearest_class(spec, p[b], k[b], q[b]))
                 rows["k"].append(k[b])
+                rows["q"].append(q[b])
     if not rows["frames"]:
         raise ValueError(
             f"the simulated videos ({spec.frames_per_sim - spec.lead_in_frames} frames) are "
             f"too short for one clip of {clip_len} frames"
         )
-    count = len(rows["frames"])
     return ClipSet(
         frames=np.stack(rows["frames"]),
         groups=np.array(rows["groups"], dtype=str),
         class_id=np.array(rows["class_id"], dtype=np.int64),
         stiffness=np.array(rows["k"], dtype=np.float64),
-        density=np.full(count, basis_density),
+        density=basis_density * np.array(rows["q"], dtype=np.float64),
         coverage=np.stack(rows["coverage"]),
     )
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from datasets.runs import find_run
 from datasets.spec import DatasetSpec, check_int
-from simulator.cloth.material import BEND_MULTIPLIERS, CLASS_COUNT
+from simulator.cloth.material import WANG54, MaterialSet
 from simulator.threads import use_process_threads
 
 from .candidates import Candidate, candidate_library, select_candidates
@@ -75,8 +75,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-BEND_COUNT = len(BEND_MULTIPLIERS)
 
 SIM_SEED_OFFSET, SIM_SEED_STEP = 1000, 10_000
 """S's seeds: training seed + SIM_SEED_OFFSET + SIM_SEED_STEP x ``sim_seed`` (never trained on;
@@ -153,18 +151,22 @@ class Budget:
             check_int(f"budget.{name}", getattr(self, name), low=19)
 
 
-def spanning_classes(classes, grid: tuple[int, int] | None) -> tuple[int, ...]:
+def spanning_classes(
+    classes, grid: tuple[int, int] | None, material_set: MaterialSet = WANG54
+) -> tuple[int, ...]:
     """A sub-grid of ``classes`` that spans the stiffness range, corners included.
 
     ``grid`` = (stretch count, bend count): that many evenly spaced stretch and bend indices
-    from the lowest to the highest present in ``classes``; each grid point takes the nearest
-    class of ``classes`` (duplicates dropped). Every n-th class would not do: with 9 bend
-    levels, a stride of 6 or 3 never reaches the stiffest bends.
+    of ``material_set`` from the lowest to the highest present in ``classes``; each grid point
+    takes the nearest class of ``classes`` (duplicates dropped; in a set of several densities,
+    the lightest, as the diagnosis draws each simulation's density from the prior anyway). Every
+    n-th class would not do: with 9 bend levels, a stride of 6 or 3 never reaches the stiffest
+    bends.
     """
     classes = tuple(int(c) for c in classes)
     if grid is None:
         return classes
-    positions = np.array([divmod(c, BEND_COUNT) for c in classes], dtype=float)
+    positions = np.array([material_set.position(c)[:2] for c in classes], dtype=float)
     axes = [
         np.linspace(positions[:, k].min(), positions[:, k].max(), count)
         for k, count in enumerate(grid)
@@ -208,15 +210,16 @@ def load_run(run: str | Path, data_dir: str | Path | None = None) -> tuple[Datas
     return trained.spec, trained.checkpoint
 
 
-def _load_net(checkpoint: str, device: str):
+def _load_net(checkpoint: str, device: str, material_set: MaterialSet | None = None):
+    """The run's network; with ``material_set``, refused unless it predicts that set's classes."""
     from models.material_classifier import load_classifier
 
     module = load_classifier(checkpoint, map_location="cpu", field="run")
     classes = module.net.classifier.out_features if hasattr(module.net, "classifier") else None
-    if classes is not None and classes != CLASS_COUNT:
+    if material_set is not None and classes is not None and classes != material_set.num_classes:
         raise ValueError(
-            f"run: checkpoint {checkpoint} has {classes} output classes; the diagnosis needs "
-            f"a classifier of the {CLASS_COUNT}-class stretch x bend subspace"
+            f"run: checkpoint {checkpoint} has {classes} output classes; its training data's "
+            f"material set {material_set.name} has {material_set.grid.describe()}"
         )
     return module.net.to(device).eval()
 
@@ -457,12 +460,12 @@ def run_diagnosis(request: DiagnosisRequest, out_dir: str | Path) -> Diagnosis:
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
     train_spec, checkpoint = load_run(r.run, r.data_dir)
-    net = _load_net(str(checkpoint), device)  # checks the class count before any work
+    net = _load_net(str(checkpoint), device, train_spec.material_set)  # before any work
     if train_spec.camera.width != train_spec.camera.height:
         raise ValueError("the training data's frames are not square; real clips are square crops")
     spec = diagnosis_spec(
         train_spec,
-        classes=spanning_classes(train_spec.classes, budget.class_grid),
+        classes=spanning_classes(train_spec.classes, budget.class_grid, train_spec.material_set),
         sims_per_class=budget.sims_per_class,
         clips_per_sim=budget.clips_per_sim,
         seed_offset=SIM_SEED_OFFSET + SIM_SEED_STEP * check_int("sim_seed", r.sim_seed, low=0),
@@ -762,7 +765,9 @@ def _stage_swaps(
     adapted_features = _adapted_real(real, real_features, bank.context, net)
     entry = {
         "camera": camera_entry,
-        "batchnorm": batchnorm_swap(nominal, real_features, adapted_features, gaps, rng=rng),
+        "batchnorm": batchnorm_swap(
+            nominal, real_features, adapted_features, gaps, spec.material_set.grid, rng=rng
+        ),
     }
     timing["counterfactuals"] = time.perf_counter() - tick
     return entry

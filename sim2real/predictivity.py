@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from common.grid import ClassGrid
+
 from .counterfactuals import group_scores
 from .domains import ClipSet
 from .network import clip_logits
@@ -30,9 +32,9 @@ MIN_CHECKPOINTS = 3
 """Fewer checkpoints give no SRCC (a rank correlation of two points says nothing)."""
 
 
-def stiffness_rho(clips: ClipSet, logits: np.ndarray) -> float:
+def stiffness_rho(clips: ClipSet, logits: np.ndarray, grid: ClassGrid) -> float:
     """Spearman ρ of the per-group material score with the group's stiffness (0.0 if flat)."""
-    per_group = group_scores(clips.groups, logits, clips.stiffness, clips.density)
+    per_group = group_scores(clips.groups, logits, clips.stiffness, clips.density, grid)
     score, stiffness = per_group["material_score"], per_group["stiffness"]
     if np.std(score) == 0 or np.std(stiffness) == 0:
         return 0.0
@@ -79,19 +81,21 @@ def predictivity(
     Returns:
         ``{"rows": [per checkpoint: sim, sim_effect, real], "before": {...}, "after": {...}}``.
     """
+    from models.evaluate import module_grid
     from models.material_classifier import load_classifier
 
     rows = []
     for checkpoint in checkpoints:
-        net = load_classifier(checkpoint).net
+        module = load_classifier(checkpoint)
+        net, grid = module.net, module_grid(module)
         rows.append(
             {
                 "checkpoint": str(checkpoint),
-                "sim": stiffness_rho(sim, clip_logits(net, sim.frames, device=device)),
+                "sim": stiffness_rho(sim, clip_logits(net, sim.frames, device=device), grid),
                 "sim_effect": stiffness_rho(
-                    sim_effect, clip_logits(net, sim_effect.frames, device=device)
+                    sim_effect, clip_logits(net, sim_effect.frames, device=device), grid
                 ),
-                "real": stiffness_rho(real, clip_logits(net, real.frames, device=device)),
+                "real": stiffness_rho(real, clip_logits(net, real.frames, device=device), grid),
             }
         )
     real_scores = [r["real"] for r in rows]

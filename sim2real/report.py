@@ -638,21 +638,28 @@ def _score_correlation_lines(correlations: dict | None) -> list[str]:
     control = correlations.get("control")
 
     def change(a, b):
-        return None if b["pearson"] is None or a["pearson"] is None else a["pearson"] - b["pearson"]
+        if b is None or b["pearson"] is None or a["pearson"] is None:
+            return None
+        return a["pearson"] - b["pearson"]
 
     def cells(entry):
+        if entry is None:  # a score the model before did not have (a density axis added)
+            return ["–", "–"]
         ci = entry["pearson_ci"]
         return [_fmt(entry["pearson"], 2), "–" if ci is None else _ci(ci)]
 
+    def of(section, scope, score, column):
+        return section.get(scope, {}).get(score, {}).get(column)
+
     rows = []
-    for scope, by_score in before.items():
+    for scope, by_score in after.items():
         for score, by_column in by_score.items():
-            for column, b in by_column.items():
-                a = after[scope][score][column]
+            for column, a in by_column.items():
+                b = of(before, scope, score, column)
                 row = ["pooled" if scope == "all" else scope, score, column, *cells(b), *cells(a)]
                 row.append(_fmt(change(a, b), 2))
                 if control is not None:
-                    c = control[scope][score][column]
+                    c = of(control, scope, score, column)
                     row += [*cells(c), _fmt(change(a, c), 2)]
                 rows.append(row)
     header = ["videos", "score", "measured", "before", "95 % CI", "after", "95 % CI", "change"]

@@ -15,6 +15,12 @@ network) beside the closure section 2 predicted, and the sim-to-real predictivit
 :mod:`sim2real.predictivity`) over the run's checkpoints and every fine-tuned epoch, with the
 nominal simulator and with the effect added. The diagnosis report is rewritten with a section
 3.
+
+``retrain_material_set=NAME`` (a set of ``configs/material_set/``, e.g. ``wang162``) also
+changes the classes the model after learns: the run's stretch x bend cells at every density of
+that set (a density axis is what lets a score follow measured density). It needs
+``init=scratch`` (the run's model predicts the run's classes); the gap after is measured on S_e
+whose cloths draw their densities over that set's span.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from common.paths import check_output_dir
 from datasets.real_video import DEFAULT_COLUMNS
 from datasets.runs import find_run
 from datasets.spec import PRESETS, DatasetSpec
+from simulator.cloth.material import MaterialSet
 
 from .candidates import candidate_library
 from .diagnosis import rung_gaps
@@ -40,7 +47,7 @@ from .predictivity import predictivity
 from .report import json_safe, read_report, write_report
 from .result import Diagnosis
 
-__all__ = ["INITS", "chosen_effects", "shrink"]
+__all__ = ["INITS", "chosen_effects", "on_material_set", "shrink"]
 
 INITS = ("weights", "scratch")
 """How the model after starts: the run's weights (fine-tuned) or a fresh initialisation."""
@@ -68,6 +75,30 @@ def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple
         )
     top = result.candidates[ranking.top]
     return [(ranking.top, top["best_strength"])]
+
+
+def on_material_set(
+    spec: DatasetSpec, material_set: MaterialSet, *, every_density: bool = True
+) -> DatasetSpec:
+    """``spec`` with ``material_set``'s classes at its classes' stretch x bend cells.
+
+    ``material_set`` must share the spec's basis and stretch and bend multipliers (it may add
+    densities); each class becomes its cell at every density (``every_density``) or at the
+    first (a diagnosis set, whose cloths draw their densities from the prior anyway).
+    """
+    old = spec.material_set
+    same = (old.basis, old.stretch_multipliers, old.bend_multipliers)
+    new = (material_set.basis, material_set.stretch_multipliers, material_set.bend_multipliers)
+    if same != new:
+        raise ValueError(
+            f"retrain_material_set: {material_set.name} must keep the run's basis and stretch x "
+            f"bend grid ({old.name}: {old.basis}, stretch {list(old.stretch_multipliers)}, bend "
+            f"{list(old.bend_multipliers)}); it may add densities"
+        )
+    densities = range(material_set.density_count if every_density else 1)
+    cells = sorted({old.position(c)[:2] for c in spec.classes})
+    classes = tuple(material_set.grid.class_id(s, b, d) for s, b in cells for d in densities)
+    return dataclasses.replace(spec, material_set=material_set, classes=classes)
 
 
 def _number(text: str):
@@ -109,7 +140,7 @@ def _fine_tune(
     At the training rate a fresh optimizer undoes a converged model (measured: held-out
     accuracy 0.46 -> 0.14 in the first epoch on the run's own data).
     """
-    from omegaconf import OmegaConf
+    from omegaconf import OmegaConf, open_dict
 
     lr = OmegaConf.select(cfg, "model.optimizer.lr")
     if lr is None:
@@ -128,6 +159,10 @@ def _fine_tune(
     }.items():
         OmegaConf.update(cfg, key, value, force_add=True)
     OmegaConf.update(cfg, "data.data_dirs", [str(data_dir)], force_add=True)
+    if checkpoint is None:  # a fresh model takes its classes from the data, whatever the run's
+        with open_dict(cfg):
+            cfg.model.net.pop("num_classes", None)
+            cfg.model.pop("class_grid", None)
     snapshots = {  # one checkpoint per epoch: the models whose ranking section 3 compares
         "_target_": "lightning.pytorch.callbacks.ModelCheckpoint",
         "dirpath": str(out / "checkpoints"),
@@ -184,6 +219,7 @@ def shrink(
     control: bool = False,
     lr_scale: float = 0.1,
     init: str = "weights",
+    material_set: MaterialSet | None = None,
 ) -> dict:
     """Retrain with the identified effect and measure the gap and correlations after.
 
@@ -193,7 +229,9 @@ def shrink(
     long on the nominal data (the run's own training data at ``preset="same"``) and evaluate it;
     ``lr_scale``: the fine-tuning rate as a fraction of the run's training rate; ``init``:
     ``weights`` fine-tunes the run's model, ``scratch`` trains a fresh one with the run's
-    recipe (its control is the run itself when it was trained as long on the same data).
+    recipe (its control is the run itself when it was trained as long on the same data);
+    ``material_set``: the classes of the model after (:func:`on_material_set`; with
+    ``init="scratch"`` only).
 
     Returns the section-3 dict (also stored in ``report.json`` and the rewritten reports).
     """
@@ -213,15 +251,27 @@ def shrink(
     train_spec, checkpoint = trained.spec, trained.checkpoint
     run_config = _run_config(run)  # checked before any data is generated
     size = train_spec.preset if preset == "same" else PRESETS[preset]
-    retrain_spec = _apply(dataclasses.replace(train_spec, preset=size), chosen)
-    out = report_dir / "shrink"
-    data = out / "data"
     if init not in INITS:
         raise ValueError(f"init must be one of {', '.join(INITS)}, got {init!r}")
+    retrain_base = dataclasses.replace(train_spec, preset=size)
+    if material_set is not None and material_set != train_spec.material_set:
+        if init != "scratch":
+            raise ValueError(
+                f"retrain_material_set: {material_set.name} has {material_set.grid.describe()} "
+                f"and the run's model predicts {train_spec.material_set.num_classes}; give "
+                "init=scratch"
+            )
+        retrain_base = on_material_set(retrain_base, material_set)
+    else:
+        material_set = None
+    retrain_spec = _apply(retrain_base, chosen)
+    out = report_dir / "shrink"
+    data = out / "data"
     start = checkpoint if init == "weights" else None
     # a run trained from scratch as long on the same data is the scratch retrain's control
     run_is_control = (
         init == "scratch"
+        and material_set is None
         and size == train_spec.preset
         and OmegaConf.select(run_config, "trainer.max_epochs") == epochs
     )
@@ -280,6 +330,8 @@ def shrink(
 
     # The gap after: S with the effect vs R, both seen by the fine-tuned network.
     nominal = DatasetSpec.from_json(inputs.nominal_spec)
+    if material_set is not None:
+        nominal = on_material_set(nominal, material_set, every_density=False)
     context = SetContext(
         box=tuple(inputs.box),
         checkpoint=str(after_ckpt),
@@ -352,6 +404,8 @@ def shrink(
         "epochs": epochs,
         "init": init,
         "lr_scale": lr_scale if init == "weights" else 1.0,
+        "material_set": retrain_spec.material_set.name,
+        "classes_after": retrain_spec.material_set.grid.describe(),
         "retrain_spec_key": retrain_spec.key(),
         "checkpoint_after": str(after_ckpt),
         "correlations": {k: v["correlations"]["all"] for k, v in evaluated.items()},
@@ -374,6 +428,24 @@ def shrink(
     result = dataclasses.replace(result, shrink=json_safe(section))
     write_report(result, report_dir, extra_figures=("clips.png",))
     return result.shrink
+
+
+MATERIAL_SETS = Path(__file__).resolve().parents[1] / "configs" / "material_set"
+"""The sets ``retrain_material_set`` may name."""
+
+
+def _material_set(name) -> MaterialSet | None:
+    """The set of ``configs/material_set/<name>.yaml`` (``None``: the run's own)."""
+    from omegaconf import OmegaConf
+
+    from datasets.generate import material_set_from_config
+
+    if name is None:
+        return None
+    allowed = sorted(p.stem for p in MATERIAL_SETS.glob("*.yaml"))
+    if not isinstance(name, str) or name not in allowed:
+        raise InputError(f"retrain_material_set must be null or one of {allowed}, got {name!r}")
+    return material_set_from_config(OmegaConf.load(MATERIAL_SETS / f"{name}.yaml"))
 
 
 def run(cfg) -> dict:
@@ -402,6 +474,7 @@ def run(cfg) -> dict:
     if isinstance(lr_scale, bool) or not isinstance(lr_scale, int | float) or not 0 < lr_scale <= 1:
         raise InputError(f"lr_scale must be a number in (0, 1], got {lr_scale!r}")
     init = check_choice(cfg.init, "init", INITS)
+    material_set = _material_set(cfg.get("retrain_material_set"))
     check_output_dir(cfg.report, "report")  # the retrained model and data go in there
     try:
         return shrink(
@@ -415,6 +488,7 @@ def run(cfg) -> dict:
             control=cfg.control,
             lr_scale=float(lr_scale),
             init=init,
+            material_set=material_set,
         )
     except ValueError as err:  # the command's own checks name the field
         raise InputError(str(err)) from None

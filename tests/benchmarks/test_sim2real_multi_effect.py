@@ -35,14 +35,14 @@ ROWS = [
 ]
 
 
-def _loop(before, after, control=None):
+def _loop(before, after, control=None, density_score="material_score"):
     def corr(r):
         return {"pearson": r, "pearson_ci": [r - 0.1, r + 0.1]}
 
     pairs = {
         "bend_score": "stiffness",
         "stretch_score": "stretch_stiffness",
-        "material_score": "density",
+        density_score: "density",
     }
     every = {
         label: {"all": {s: {c: corr(v)} for s, c in pairs.items()}}
@@ -81,6 +81,22 @@ def test_a_control_fine_tune_gives_the_gain_over_extra_training_alone():
     assert loop["bend_score vs stiffness"]["gain_over_control"] == pytest.approx(0.1)
     result = figures(ROWS, loop)
     assert result["independent_engine_r_gain_over_control_min"] == pytest.approx(0.1)
+
+
+def test_a_model_with_a_density_axis_is_judged_on_its_density_score():
+    thesis = loop_figures(_loop(0.25, 0.55))
+    assert "material_score vs density" in thesis and "density_score vs density" not in thesis
+    dense = loop_figures(_loop(0.1, 0.6, density_score="density_score"))
+    assert dense["density_score vs density"]["gain"] == pytest.approx(0.5)
+    assert "material_score vs density" not in dense
+    # a density axis added by the loop: the model before is judged on its material score
+    added = _loop(0.1, 0.6, control=0.2)
+    added["shrink"]["score_correlations"]["after"] = _loop(0.0, 0.6, density_score="density_score")[
+        "shrink"
+    ]["score_correlations"]["after"]
+    entry = loop_figures(added)["density_score vs density"]
+    assert (entry["before"], entry["after"], entry["control"]) == (0.1, 0.6, 0.2)
+    assert entry["before_score"] == entry["control_score"] == "material_score"
 
 
 def test_without_a_loop_its_targets_are_not_measured():

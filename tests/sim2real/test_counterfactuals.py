@@ -18,6 +18,7 @@ from sim2real.diagnosis import rung_gaps
 from sim2real.features import MOTION_FEATURE_NAMES, PIXEL_FEATURE_NAMES
 from sim2real.ladder import LadderFeatures
 from sim2real.network import adapt_batchnorm, layer_features
+from simulator.cloth.material import WANG54
 
 GROUPS, CLIPS = 18, 3
 NOISE = PIXEL_FEATURE_NAMES.index("noise_sigma_luma")
@@ -197,6 +198,7 @@ def test_batchnorm_swap_closes_a_brightness_gap_in_the_layers():
         real,
         ladder(adapt_batchnorm(net, target, batch_size=8), target),
         gaps,
+        WANG54.grid,
         rng=np.random.default_rng(0),
     )
     assert swap["available"]
@@ -207,7 +209,7 @@ def test_batchnorm_swap_closes_a_brightness_gap_in_the_layers():
         for s in ("material_score", "stretch_score", "bend_score")
         for t in ("stiffness", "density")
     }
-    assert batchnorm_swap(sim, real, None, gaps, rng=np.random.default_rng(0)) == {
+    assert batchnorm_swap(sim, real, None, gaps, WANG54.grid, rng=np.random.default_rng(0)) == {
         "available": False,
         "reason": "the network has no batch-norm layer",
     }

@@ -8,6 +8,7 @@ import csv
 import dataclasses
 import hashlib
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -382,7 +383,7 @@ def test_unreadable_video_and_wrong_class_count_are_refused(world, tmp_path):
         _diagnose(world, tmp_path / "out", real_dir=real)
     run = tmp_path / "run10"
     _checkpoint(run / "checkpoints" / "best.ckpt", NET, classes=10)
-    with pytest.raises(ValueError, match="has 10 output classes"):
+    with pytest.raises(ValueError, match=r"has 10 output classes; .* wang54 has 54 \(the 6 x 9"):
         _diagnose(world, tmp_path / "out", run=run)
     assert not (tmp_path / "out").exists()
 
@@ -491,6 +492,22 @@ def test_shrink_retrains_with_the_effect_and_reports_before_and_after(world, tmp
     assert "nominal control" in text and "after − nominal" in text
     assert "SRCC" in text
     assert json.loads((out / "report.json").read_text())["shrink"]["epochs"] == 2
+
+    # a density axis for the model after: the run's cells at two densities, trained afresh
+    dense = dataclasses.replace(spec.material_set, name="dense", density_multipliers=(0.5, 1.0))
+    with pytest.raises(ValueError, match="give init=scratch"):
+        shrink(out, epochs=1, preset="same", n_jobs=1, material_set=dense)
+    again = tmp_path / "report-dense"  # a report's shrink folder holds one retrain
+    shutil.copytree(out, again, ignore=shutil.ignore_patterns("shrink"))
+    section = shrink(again, epochs=1, preset="same", n_jobs=1, init="scratch", material_set=dense)
+    assert section["material_set"] == "dense" and section["classes_after"].startswith("108 (")
+    from models.material_classifier import load_classifier
+
+    assert load_classifier(section["checkpoint_after"]).class_grid == dense.grid
+    every = section["score_correlations"]
+    assert "density_score" in every["after"]["all"]
+    assert "density_score" not in every["before"]["all"]
+    assert "| pooled | density_score | density | – | – |" in (again / "report.md").read_text()
 
 
 def _merged(out: Path, report: dict, answer: Path) -> None:

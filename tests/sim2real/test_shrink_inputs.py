@@ -18,6 +18,8 @@ import pytest
         ("lr_scale=2", "lr_scale"),
         ("init=random", "init"),
         ("use_effects=[a]", "use_effects"),
+        ("retrain_material_set=wang999", "retrain_material_set"),
+        ("retrain_material_set=../wang162", "retrain_material_set"),
     ],
 )
 def test_shrink_names_a_bad_field(tmp_path, override, field):
@@ -79,3 +81,24 @@ def test_the_report_says_how_the_model_after_was_trained(shrink, words):
     from sim2real.report import _retrain_words
 
     assert _retrain_words(shrink) == words
+
+
+def test_a_density_axis_keeps_the_runs_cells_at_every_density():
+    import dataclasses
+
+    from datasets.spec import PRESETS, DatasetSpec
+    from sim2real.shrink import on_material_set
+    from simulator.cloth.material import WANG54, MaterialSet
+    from simulator.cloth.scenes import ScenarioWind
+
+    spec = DatasetSpec(motion="wind", scenario=ScenarioWind(), preset=PRESETS["small"])
+    spec = dataclasses.replace(spec, classes=(0, 20, 53))
+    dense = dataclasses.replace(WANG54, name="dense", density_multipliers=(0.5, 1.0, 2.0))
+    every = on_material_set(spec, dense)
+    assert every.material_set == dense and len(every.classes) == 9
+    assert [dense.position(c) for c in every.classes[3:6]] == [(2, 2, d) for d in range(3)]
+    first = on_material_set(spec, dense, every_density=False)
+    assert first.classes == (0, 60, 159)
+    other = MaterialSet("other", WANG54.basis, (1.0, 2.0), WANG54.bend_multipliers, (1.0, 2.0))
+    with pytest.raises(ValueError, match="must keep the run's basis and stretch x bend grid"):
+        on_material_set(spec, other)
