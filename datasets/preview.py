@@ -64,9 +64,16 @@ def draw_label(image: np.ndarray, text: str, origin: tuple[int, int], scale: flo
 
 
 def class_lines(class_id: int, material_set: MaterialSet = WANG54) -> tuple[str, ...]:
-    """Label lines of a class of ``material_set``: its id, then its stretch and bend multipliers."""
+    """Label lines of a class of ``material_set``.
+
+    Its id, its stretch and bend multipliers and, in a set of several densities, its density
+    multiplier.
+    """
     stretch, bend = material_set.multipliers(int(class_id))
-    return (f"class {int(class_id)}", f"stretch x{stretch:g}", f"bend x{bend:g}")
+    lines = (f"class {int(class_id)}", f"stretch x{stretch:g}", f"bend x{bend:g}")
+    if material_set.density_count > 1:
+        lines += (f"density x{material_set.density_mult(int(class_id)):g}",)
+    return lines
 
 
 def label_panel(lines: Sequence[str], height: int, width: int) -> np.ndarray:

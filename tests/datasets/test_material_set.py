@@ -18,6 +18,7 @@ from datasets.datamodule import ClothVideoDataModule
 from datasets.generate import spec_from_config
 from datasets.generation import generate_dataset
 from datasets.manifest import Manifest, legacy_class_grid, write_json
+from datasets.preview import class_lines
 from datasets.shards import ShardError
 from datasets.spec import PRESETS, DatasetSpec
 from simulator.cloth.material import (
@@ -196,6 +197,8 @@ def test_a_density_axis_orders_ids_density_last_and_scales_the_density():
     materials = DENSE.materials([6, 7, 8])
     assert materials.density.tolist() == pytest.approx([0.5 * basis, basis, 2 * basis])
     assert torch.equal(materials.stretching[0], materials.stretching[2])
+    assert class_lines(7, DENSE) == ("class 7", "stretch x10", "bend x0.5", "density x1")
+    assert class_lines(7) == ("class 7", "stretch x0.5", "bend x15")
     with pytest.raises(MaterialError, match=r"class_id must be an integer in \[0, 11\]"):
         DENSE.density_mult(12)
     with pytest.raises(MaterialError, match=r"density \(0.5, 1.0, 2.0\)"):
