@@ -114,14 +114,37 @@ def occluded_joints(scene_pose: Pose, body: Mannequin, camera, garment_masks) ->
     return out
 
 
-def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dict:
-    """Drape, render and recover one scene; its metrics."""
+@dataclasses.dataclass
+class SceneSetup:
+    """A scene draped, rendered and its body fitted: what each garment's recovery starts from."""
+
+    scene: object
+    body: Mannequin
+    camera: object
+    draped: dict
+    caps: object
+    image: np.ndarray
+    person: np.ndarray
+    masks: list
+    truth_pose: Pose
+    occluded: dict
+    fit: object
+    body_seconds: float
+    start: float
+
+    @property
+    def garments(self) -> list[str]:
+        """The scene's garments, in the order of their masks."""
+        return list(self.draped)
+
+
+def set_up_scene(scene, settings: RecoverySettings, edge_length: float, log) -> SceneSetup:
+    """Drape and render one scene and fit the body to its image."""
     start = time.perf_counter()
     body = Mannequin.build()
     camera = scene_camera()
     draped = drape_scene(scene, body, edge_length)
     caps = body.capsules(scene.pose_angles()[None])[0]
-    garments = list(draped)
     image, person, masks = render_scene(
         camera,
         scene_light(scene.lighting),
@@ -140,64 +163,98 @@ def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dic
         f"{scene.name}: scene {tick - start:.0f} s, body fit {body_seconds:.0f} s, "
         f"loss {fit.loss:.3f}"
     )
+    return SceneSetup(
+        scene,
+        body,
+        camera,
+        draped,
+        caps,
+        image,
+        person,
+        masks,
+        truth_pose,
+        occluded,
+        fit,
+        body_seconds,
+        start,
+    )
+
+
+def recover_one(setup: SceneSetup, k: int, settings: RecoverySettings, log) -> tuple[dict, Pose]:
+    """Recover garment ``k`` of a set-up scene: its metrics and the pose its recovery found."""
+    g = setup.garments[k]
+    truth = next(s for s in setup.scene.garments if s.garment == g)
+    tick = time.perf_counter()
+    res = recover_garment(
+        setup.image,
+        g,
+        setup.camera,
+        settings,
+        mask=setup.masks[k],
+        person=setup.person,
+        body_fit=setup.fit,
+    )
+    minutes = (time.perf_counter() - tick) / 60.0
+    # The true drape's regional curvature, regions from the true body.
+    pattern, drape_res = setup.draped[g]
+    regions = primitive_regions(setup.body, g)
+    tri = torch.as_tensor(pattern.topology.tri_indices)
+    from apps.garment.recovery import _hinges
+
+    edges = torch.as_tensor(_hinges(pattern.topology))
+    vr = vertex_regions(drape_res.pos[0].numpy(), setup.caps, regions)
+    k_true = regional_curvature(drape_res.pos, tri, edges, vr, len(REGIONS[g]))[0].numpy()
+    seen = ~np.isnan(k_true)
+    k_acc = float(np.mean(1 - np.abs(res.curvature[seen] - k_true[seen]) / k_true[seen]))
+    count = len(setup.garments)
+    timings = dict(res.timings)
+    timings["body"] = timings.get("body", 0.0) + setup.body_seconds / count
+    row = {
+        "params_true": truth.params,
+        "params": res.pattern.params,
+        "sizing_accuracy": accuracy(res.pattern.params, truth.params),
+        "material_true": truth.material,
+        "material": res.material,
+        "material_accuracy": accuracy(res.material, truth.material),
+        "curvature_true": k_true.tolist(),
+        "curvature": res.curvature.tolist(),
+        "curvature_target": res.curvature_target.tolist(),
+        "curvature_accuracy": k_acc,
+        "minutes": minutes + setup.body_seconds / 60.0 / count,
+        "seconds_split": timings,
+    }
+    log(
+        f"  {g}: G {row['sizing_accuracy']:.3f}, C {row['material_accuracy']:.3f}, "
+        f"K {k_acc:.3f}, {row['minutes']:.1f} min"
+    )
+    return row, res.pose
+
+
+def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dict:
+    """Drape, render and recover one scene; its metrics."""
+    setup = set_up_scene(scene, settings, edge_length, log)
+    garments = setup.garments
     results, poses = {}, {}
     for k, g in enumerate(garments):
-        truth = next(s for s in scene.garments if s.garment == g)
-        tick = time.perf_counter()
-        res = recover_garment(
-            image, g, camera, settings, mask=masks[k], person=person, body_fit=fit
-        )
-        minutes = (time.perf_counter() - tick) / 60.0
-        # The true drape's regional curvature, regions from the true body.
-        pattern, drape_res = draped[g]
-        regions = primitive_regions(body, g)
-        tri = torch.as_tensor(pattern.topology.tri_indices)
-        from apps.garment.recovery import _hinges
-
-        edges = torch.as_tensor(_hinges(pattern.topology))
-        vr = vertex_regions(drape_res.pos[0].numpy(), caps, regions)
-        k_true = regional_curvature(drape_res.pos, tri, edges, vr, len(REGIONS[g]))[0].numpy()
-        seen = ~np.isnan(k_true)
-        k_acc = float(np.mean(1 - np.abs(res.curvature[seen] - k_true[seen]) / k_true[seen]))
-        timings = dict(res.timings)
-        timings["body"] = timings.get("body", 0.0) + body_seconds / len(garments)
-        results[g] = {
-            "params_true": truth.params,
-            "params": res.pattern.params,
-            "sizing_accuracy": accuracy(res.pattern.params, truth.params),
-            "material_true": truth.material,
-            "material": res.material,
-            "material_accuracy": accuracy(res.material, truth.material),
-            "curvature_true": k_true.tolist(),
-            "curvature": res.curvature.tolist(),
-            "curvature_target": res.curvature_target.tolist(),
-            "curvature_accuracy": k_acc,
-            "minutes": minutes + body_seconds / 60.0 / len(garments),
-            "seconds_split": timings,
-        }
-        poses[g] = res.pose
-        row = results[g]
-        log(
-            f"  {g}: G {row['sizing_accuracy']:.3f}, C {row['material_accuracy']:.3f}, "
-            f"K {k_acc:.3f}, {row['minutes']:.1f} min"
-        )
-    final = fit.pose.angles.copy()
+        results[g], poses[g] = recover_one(setup, k, settings, log)
+    final = setup.fit.pose.angles.copy()
     for i, name in enumerate(JOINTS):
         source = (
             "tshirt" if name in UPPER_JOINTS else next((g for g in garments if g != "tshirt"), None)
         )
         if source in poses:
             final[i] = poses[source].angles[i]
-    errors = joint_angle_errors(Pose(final), truth_pose)
+    errors = joint_angle_errors(Pose(final), setup.truth_pose)
+    fit = setup.fit
     return {
         "scene": scene.name,
         "pose": scene.pose,
         "lighting": scene.lighting,
         "garments": results,
         "joint_err_deg": errors,
-        "occluded": occluded,
+        "occluded": setup.occluded,
         "body_fit": {"height": fit.shape.height, "offset": fit.offset.tolist(), "loss": fit.loss},
-        "seconds": time.perf_counter() - start,
+        "seconds": time.perf_counter() - setup.start,
     }
 
 
