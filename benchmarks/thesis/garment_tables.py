@@ -25,9 +25,10 @@ with small swarms (under 10 minutes on a 2-core CPU) and writes nothing unless `
 given. The last line printed is the summary as JSON.
 
 Every finished scene's row is kept in ``--work`` (default ``outputs/garment_tables/``), under
-the settings it was made with, so a killed run resumes at the scene it was on; ``--fresh``
-recomputes every scene. Each row names the commit that made it, and the results file lists
-them (``commits``), so rows from different code are visible.
+the settings it was made with, and every finished garment of the scene under way beside it, so
+a killed run resumes at the garment it was on (the scene's drape and body fit, under a minute,
+are made again); ``--fresh`` recomputes every scene. Each row names the commit that made it,
+and the results file lists them (``commits``), so rows from different code are visible.
 """
 
 from __future__ import annotations
@@ -230,13 +231,32 @@ def recover_one(setup: SceneSetup, k: int, settings: RecoverySettings, log) -> t
     return row, res.pose
 
 
-def run_scene(scene, settings: RecoverySettings, edge_length: float, log) -> dict:
-    """Drape, render and recover one scene; its metrics."""
+def run_scene(
+    scene,
+    settings: RecoverySettings,
+    edge_length: float,
+    log,
+    kept: dict[str, dict] | None = None,
+    on_garment=None,
+) -> dict:
+    """Drape, render and recover one scene; its metrics.
+
+    ``kept``: garment -> ``{"row", "pose"}`` of the garments an earlier, killed run of this
+    scene finished (not recovered again); ``on_garment(garment, entry)`` receives each newly
+    finished garment's entry of that form.
+    """
+    kept = kept or {}
     setup = set_up_scene(scene, settings, edge_length, log)
     garments = setup.garments
     results, poses = {}, {}
     for k, g in enumerate(garments):
+        if g in kept:
+            results[g], poses[g] = kept[g]["row"], Pose(np.asarray(kept[g]["pose"]))
+            log(f"  {g}: kept from an earlier run")
+            continue
         results[g], poses[g] = recover_one(setup, k, settings, log)
+        if on_garment is not None:
+            on_garment(g, {"row": results[g], "pose": poses[g].angles.tolist()})
     final = setup.fit.pose.angles.copy()
     for i, name in enumerate(JOINTS):
         source = (
@@ -292,6 +312,25 @@ def stored_row(folder: Path, name: str) -> dict | None:
     except (OSError, json.JSONDecodeError):
         return None
     return row if row.get("scene") == name else None
+
+
+def garment_path(folder: Path, scene: str, garment: str) -> Path:
+    """Where one finished garment of an unfinished scene is kept."""
+    return folder / f"{scene}.{garment}.json"
+
+
+def stored_garments(folder: Path, scene: str) -> dict[str, dict]:
+    """The garments of ``scene`` an earlier run finished before it was killed (by garment)."""
+    out = {}
+    for path in sorted(folder.glob(f"{scene}.*.json")):
+        try:
+            entry = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            continue
+        garment = path.name[len(scene) + 1 : -len(".json")]
+        if entry.get("scene") == scene and entry.get("garment") == garment:
+            out[garment] = entry
+    return out
 
 
 def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> list[dict]:
@@ -566,12 +605,21 @@ def main(argv: list[str] | None = None) -> dict:
         if row is not None:
             log(f"{name}: kept from {folder / (name + '.json')} (commit {row.get('commit')})")
         else:
-            row = {
-                **run_scene(by_name[name], settings, settings.edge_length, log),
-                "commit": commit,
-            }
             folder.mkdir(parents=True, exist_ok=True)
+
+            def keep(garment: str, entry: dict, name: str = name) -> None:
+                entry = {**entry, "scene": name, "garment": garment, "commit": commit}
+                path = garment_path(folder, name, garment)
+                atomic_write_bytes(path, (json.dumps(entry) + "\n").encode())
+
+            kept = {} if args.fresh else stored_garments(folder, name)
+            scene_row = run_scene(
+                by_name[name], settings, settings.edge_length, log, kept=kept, on_garment=keep
+            )
+            row = {**scene_row, "commit": commit}
             atomic_write_bytes(folder / f"{name}.json", (json.dumps(row) + "\n").encode())
+            for garment in scene_row["garments"]:
+                garment_path(folder, name, garment).unlink(missing_ok=True)
         rows.append(row)
     commits = sorted({str(r.get("commit")) for r in rows})
     if len(commits) > 1:

@@ -3,6 +3,10 @@
 import copy
 import json
 from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
 
 from benchmarks.thesis.garment_tables import (
     DOCS_PAGE,
@@ -12,6 +16,7 @@ from benchmarks.thesis.garment_tables import (
     markdown_table,
     thesis_column,
 )
+from simulator.garment.body import Pose
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "docs" / "results" / "garment_tables.json"
@@ -61,7 +66,7 @@ def test_a_killed_run_resumes_at_the_scene_it_was_on(tmp_path, monkeypatch):
     report = json.loads(RESULTS.read_text())
     made = []
 
-    def fake_scene(scene, settings, edge_length, log):
+    def fake_scene(scene, settings, edge_length, log, **_garments_kept):
         made.append(scene.name)
         if scene.name == "a_sunset" and len(made) == 2:
             raise KeyboardInterrupt  # killed on the second scene
@@ -87,3 +92,50 @@ def test_a_killed_run_resumes_at_the_scene_it_was_on(tmp_path, monkeypatch):
     assert made[3:] == ["a_midday", "a_sunset"]
     main([*argv, "--swarm", "4"])  # other settings: other rows
     assert made[5:] == ["a_midday", "a_sunset"]
+
+
+def test_a_scene_killed_on_its_second_garment_keeps_the_first(tmp_path, monkeypatch):
+    import benchmarks.thesis.garment_tables as tables
+
+    template = json.loads(RESULTS.read_text())["rows"][0]
+    scene, garments = template["scene"], list(template["garments"])
+    occluded = template["occluded"]
+    recovered, kill = [], [True]
+
+    def set_up(scene_spec, settings, edge_length, log):
+        fit = SimpleNamespace(
+            pose=Pose(), shape=SimpleNamespace(height=1.7), offset=np.zeros(3), loss=0.1
+        )
+        draped = dict.fromkeys(garments)
+        return tables.SceneSetup(
+            scene_spec, None, None, draped, None, None, None, [], Pose(), occluded, fit, 0.0, 0.0
+        )
+
+    def recover(setup, k, settings, log):
+        g = setup.garments[k]
+        recovered.append(g)
+        if k == 1 and kill[0]:
+            kill[0] = False
+            raise KeyboardInterrupt  # killed on the second garment
+        angles = np.zeros((15, 3))
+        angles[:, k] = 5.0 * (k + 1)  # each garment's pose decides its own joints
+        return copy.deepcopy(template["garments"][g]), Pose(angles)
+
+    monkeypatch.setattr(tables, "set_up_scene", set_up)
+    monkeypatch.setattr(tables, "recover_one", recover)
+    monkeypatch.setattr(tables, "use_process_threads", lambda *a, **k: None)  # keep pytest's
+    argv = ["--scenes", scene, "--out", str(tmp_path / "r.json"), "--work", str(tmp_path / "w")]
+    with pytest.raises(KeyboardInterrupt):
+        main(argv)
+    (folder,) = (tmp_path / "w").iterdir()
+    assert [p.name for p in folder.iterdir()] == [f"{scene}.{garments[0]}.json"]
+    main(argv)
+    assert recovered == [garments[0], garments[1], garments[1]]  # the first one kept
+    assert [p.name for p in folder.iterdir()] == [f"{scene}.json"]  # its partial removed
+    resumed = json.loads((folder / f"{scene}.json").read_text())
+    assert resumed["garments"] == template["garments"]
+    main([*argv, "--fresh"])  # uninterrupted: every garment recovered, the same row
+    assert recovered[3:] == garments
+    fresh = json.loads((folder / f"{scene}.json").read_text())
+    assert fresh["joint_err_deg"] == resumed["joint_err_deg"]
+    assert len(set(fresh["joint_err_deg"].values())) > 1  # both garments' poses took part
