@@ -90,8 +90,8 @@ class ClassGrid:
     def to_json(self) -> dict:
         """Plain JSON: the multipliers and the counts (a checkpoint's ``class_grid``).
 
-        The density keys appear only for more than one density, so a stretch x bend grid
-        reads and hashes as before they existed.
+        The density keys appear only where the densities are not the basis's alone, so a
+        stretch x bend grid reads and hashes as before they existed.
         """
         out = {
             "stretch_multipliers": list(self.stretch_multipliers),
@@ -100,7 +100,7 @@ class ClassGrid:
             "stretch_count": self.stretch_count,
             "bend_count": self.bend_count,
         }
-        if self.density_count > 1:
+        if self.density_multipliers != (1.0,):
             out["density_multipliers"] = list(self.density_multipliers)
             out["density_count"] = self.density_count
         return out

@@ -333,7 +333,7 @@ class DatasetSpec:
 
         ``store_passes`` appears only when on, ``backdrop`` only when it is not ``bank`` and
         ``material_set`` only when it is not :data:`~simulator.cloth.material.WANG54` (its
-        ``density_multipliers`` only when there are several), so
+        ``density_multipliers`` only when they are not the basis's density alone), so
         datasets made before they existed keep their keys (and resume); :meth:`from_json`
         reads a missing backdrop as ``bank`` and a missing set as ``WANG54``. The
         Newton loop's ``whole_step`` (same arithmetic, one compiled call) appears only when
@@ -350,7 +350,7 @@ class DatasetSpec:
             del out["sim"]["newton"]["whole_step"]
         if self.material_set == WANG54:
             del out["material_set"]
-        elif self.material_set.density_count == 1:  # one density: the keys of a 2-axis set
+        elif self.material_set.density_multipliers == (1.0,):  # the keys of a 2-axis set
             del out["material_set"]["density_multipliers"]
         for part, groups, default in (
             ("visual", _LATER_VISUAL_FIELDS, _DEFAULT_VISUAL),

@@ -223,6 +223,12 @@ def test_a_density_axis_round_trips_and_one_density_keeps_the_old_keys():
         "density_multipliers"
         not in tiny_spec(classes=None, material_set=TWO).to_json()["material_set"]
     )
+    # one density other than the basis's is kept too: it is another material, another cache
+    light = dataclasses.replace(TWO, density_multipliers=(0.5,))
+    assert MaterialSet.from_json(json.loads(json.dumps(light.to_json()))) == light
+    light_spec = tiny_spec(classes=None, material_set=light)
+    assert DatasetSpec.from_json(json.loads(json.dumps(light_spec.to_json()))) == light_spec
+    assert light_spec.physics_key() != tiny_spec(classes=None, material_set=TWO).physics_key()
     node = OmegaConf.to_container(OmegaConf.load(ROOT / "configs/material_set/wang162.yaml"))
     wang162 = MaterialSet.from_json(node)
     assert wang162.num_classes == 162 and wang162.multipliers(3 * 53 + 2) == (20.0, 20.0)
