@@ -35,7 +35,6 @@ __all__ = [
     "CORRELATED_SCORES",
     "SCORE_NAMES",
     "correlated_scores",
-    "density_score_name",
     "material_scores",
 ]
 
@@ -52,15 +51,6 @@ def correlated_scores(grid: ClassGrid) -> tuple[str, ...]:
     :data:`CORRELATED_SCORES`, and ``density_score`` when the grid has several densities.
     """
     return (*CORRELATED_SCORES, "density_score") if grid.density_count > 1 else CORRELATED_SCORES
-
-
-def density_score_name(grid: ClassGrid) -> str:
-    """The score to hold against measured density.
-
-    ``density_score`` where the grid has a density axis, else ``material_score`` (the thesis's
-    choice for its one-density grid).
-    """
-    return "density_score" if grid.density_count > 1 else "material_score"
 
 
 def material_scores(probs: torch.Tensor, grid: ClassGrid) -> dict[str, torch.Tensor]:

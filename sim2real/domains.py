@@ -115,23 +115,19 @@ def prior_materials(spec: DatasetSpec, unit: WorkUnit) -> tuple[np.ndarray, np.n
     no effect at all).
     """
     materials = spec.material_set
-    multipliers = np.log([materials.multipliers(c) for c in spec.classes])
-    low, high = multipliers.min(axis=0), multipliers.max(axis=0)
-    draws = np.array(
-        [np.random.default_rng([s.seed, _MATERIAL_STREAM]).uniform(low, high) for s in unit.sims]
-    )
+    stretch_bend = np.log([materials.multipliers(c) for c in spec.classes])
     densities = np.log(materials.density_multipliers)
+
+    def draw(stream: int, low, high) -> np.ndarray:
+        """Log-uniform draws, one per simulation from its seed alone."""
+        rng = [np.random.default_rng([s.seed, stream]) for s in unit.sims]
+        return np.exp(np.array([r.uniform(low, high) for r in rng]))
+
+    p, k = draw(_MATERIAL_STREAM, stretch_bend.min(axis=0), stretch_bend.max(axis=0)).T
     q = np.ones(len(unit.sims))
     if materials.density_count > 1:
-        q = np.exp(
-            [
-                np.random.default_rng([s.seed, _DENSITY_STREAM]).uniform(
-                    densities.min(), densities.max()
-                )
-                for s in unit.sims
-            ]
-        )
-    return np.exp(draws[:, 0]), np.exp(draws[:, 1]), q
+        q = draw(_DENSITY_STREAM, densities.min(), densities.max())
+    return p, k, q
 
 
 def _nearest_class(spec: DatasetSpec, p: float, k: float, q: float) -> int:

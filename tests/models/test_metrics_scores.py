@@ -8,7 +8,7 @@ from scipy import stats
 from common.grid import ClassGrid
 from models.correlation import correlate
 from models.metrics import breakdown_metrics, classification_metrics, confusion_matrix
-from models.scores import correlated_scores, density_score_name, material_scores
+from models.scores import correlated_scores, material_scores
 from simulator.cloth.material import BEND_MULTIPLIERS, STRETCH_MULTIPLIERS
 
 GRID = ClassGrid(STRETCH_MULTIPLIERS, BEND_MULTIPLIERS)
@@ -160,7 +160,6 @@ def test_a_density_axis_adds_density_metrics_and_a_density_score():
     assert scores["density_score"].tolist() == [1, 2, 2]
     assert scores["stretch_score"].tolist() == [1, 0, 1]
     assert scores["bend_score"].tolist() == [0, 0, 1]
-    assert correlated_scores(grid)[-1] == "density_score" == density_score_name(grid)
+    assert correlated_scores(grid)[-1] == "density_score"
     assert "density_score" not in material_scores(torch.full((1, 54), 1 / 54), GRID)
-    assert density_score_name(GRID) == "material_score"
     assert "density_score" not in correlated_scores(GRID)
