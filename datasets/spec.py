@@ -47,7 +47,10 @@ _LATER_VISUAL_FIELDS = (
 :meth:`DatasetSpec.to_json` leaves each group out while it is at its defaults, so those
 datasets (and sets with the earlier ones on) keep their keys."""
 _DEFAULT_VISUAL = VisualEffects()
-_LATER_PHYSICS_FIELDS = (("isotropic_drag", "drag_isotropy"),)
+_LATER_PHYSICS_FIELDS = (
+    ("isotropic_drag", "drag_isotropy"),
+    ("density_variation", "density_spread"),
+)
 """Physical-effect fields added after datasets were made, left out of the JSON likewise."""
 _DEFAULT_PHYSICS = PhysicsEffects()
 

@@ -13,9 +13,18 @@ the factors that matter, each with its share of the gap. Scored against the answ
   scales), are built and attributed exactly as the diagnosis attributes its own fit (reset
   and exact Shapley values, :func:`truth_attribution`);
 * an effect-free twin counts as a false attribution when any factor or effect is named.
+
+Every sealed set's fabrics differ in areal density (the answer's ``density_range``), which a
+simulator of one density per class lacks: that spread is a true difference of every such set,
+the library's ``physics.density_variation`` at the spread ln(high / low)
+(:func:`answer_effects`). It is scored as a withheld effect of a ``multi`` set, and naming it
+is not a false attribution (a twin's or an open set's); answers without a range have no such
+entry.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -23,7 +32,29 @@ from ..diagnosis.joint import MATTERS, Factor, assignment, attribute, calibrate
 from ..reopen import reopen
 from ..result import Diagnosis
 
-__all__ = ["named_factors", "predicted_stage_shares", "score_multi", "truth_attribution"]
+__all__ = [
+    "FABRIC_SPREAD",
+    "answer_effects",
+    "named_factors",
+    "predicted_stage_shares",
+    "score_multi",
+    "truth_attribution",
+]
+
+FABRIC_SPREAD = "physics.density_variation"
+"""The library effect that the fabrics' own density spread is."""
+
+
+def answer_effects(answer: dict) -> list[dict]:
+    """The answer's withheld effects plus its fabrics' density spread, when it has one."""
+    effects = list(answer["effects"])
+    low, high = answer.get("density_range", (1.0, 1.0))
+    if high > low and all(e["name"] != FABRIC_SPREAD for e in effects):
+        spread = float(f"{math.log(high / low):.4g}")
+        effects.append(
+            {"name": FABRIC_SPREAD, "stage": "physics", "strength": spread, "library": True}
+        )
+    return effects
 
 
 def named_factors(result: Diagnosis) -> set[str]:
@@ -56,7 +87,7 @@ def _truth_factors(result: Diagnosis, answer: dict, spread: int) -> list[Factor]
     attributed at the strengths that reproduce it best with the library.
     """
     factors = []
-    for effect in answer["effects"]:
+    for effect in answer_effects(answer):
         if not effect["library"]:
             continue
         name, sealed = effect["name"], effect["strength"]
@@ -122,10 +153,11 @@ def _f1(named: set[str], truth: set[str]) -> tuple[float, float, float]:
 def score_multi(result: Diagnosis, answer: dict, truth: dict | None) -> dict:
     """The factor and share scores of a ``multi`` or ``twin`` set (``truth``: its attribution)."""
     named = named_factors(result)
-    withheld = {e["name"] for e in answer["effects"] if e["library"]}
+    withheld = {e["name"] for e in answer_effects(answer) if e["library"]}
     row: dict = {"named": sorted(named)}
     if answer["kind"] == "twin":
-        row["false_attribution"] = bool(named)
+        row["false_attribution"] = bool(named - withheld)
+        row["named_fabric_spread"] = FABRIC_SPREAD in named
         return row
     row["factor_precision"], row["factor_recall"], row["factor_f1"] = _f1(named, withheld)
     row["joint_closure"] = None if result.joint is None else result.joint.closure

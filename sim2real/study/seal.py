@@ -295,6 +295,7 @@ def seal_set(
             effects=spec.physics,
             settings=spec.sim,
         )
+        weighed = spec.physics.density_factors([sim_seeds[i] for i in idx])
         for b, i in enumerate(idx):
             plan = SimulationPlan(-1, i, sim_seeds[i], winds[i], "test")
             # as the spec renders it, plus any out-of-library image effect (open_set)
@@ -310,7 +311,8 @@ def seal_set(
                 image_twins=image_effects == "twins",
             )
             _write_frames(partial / f"v{i:03d}", frames)
-            density = basis.density * density_factor[i]
+            # a withheld density_variation re-weighs the cloth on top of the fabric's own draw
+            density = basis.density * density_factor[i] * weighed[b]
             rows.append(f"v{i:03d},{k[i]:.6g},{density:.6g},W{winds[i] + 1},{spec.preset.fps:g}")
     (partial / "labels.csv").write_text("\n".join(rows) + "\n")
     if out.exists():
@@ -323,6 +325,7 @@ def seal_set(
         "base_spec_key": base.key(),
         "sealed_spec_key": spec.key(),
         "image_effects": image_effects,
+        "density_range": [float(low), float(high)],
     }
     text = json.dumps(answer, indent=2, sort_keys=True) + "\n"
     answer_path.write_text(text)

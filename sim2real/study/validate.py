@@ -45,7 +45,7 @@ from ..diagnosis import OPEN_SET_MIN_CLOSURE
 from ..pipeline import Budget, DiagnosisRequest, load_run, run_diagnosis
 from ..report import read_report
 from ..result import Diagnosis
-from .multi import score_multi, truth_attribution
+from .multi import answer_effects, score_multi, truth_attribution
 from .rescore import decided_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
@@ -111,7 +111,10 @@ def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) 
     row["detected"] = bool(result.scored_rungs)
     row["budget"] = result.inputs.budget
     if answer["kind"] == "open":
-        row["false_attribution"] = bool(ranking.explained)
+        spread = {e["name"] for e in answer_effects(answer)}  # the fabrics' own, when any
+        row["false_attribution"] = bool(ranking.explained) and not (
+            set(ranking.explained_by or [ranking.top]) <= spread
+        )
         return row
     if answer["kind"] in ("multi", "twin"):
         return {**row, **score_multi(result, answer, attribution)}
@@ -201,6 +204,7 @@ def summarise(rows: list[dict]) -> dict:
     out["budgets"] = sorted({r["budget"] for r in rows if r.get("budget")})
     out["open_false_attribution"], out["open_n"] = rate("false_attribution", ("open",))
     out["twin_false_attribution"], out["twin_n"] = rate("false_attribution", ("twin",))
+    out["twin_named_fabric_spread"], _ = rate("named_fabric_spread", ("twin",))
     for key in ("factor_f1", "factor_f1_matter", "factor_precision", "factor_recall"):
         out[key], out[f"{key}_n"] = rate(key, ("multi",))
     errors = [
@@ -353,6 +357,8 @@ def _multi_rows(summary: dict, pct) -> list[str]:
         f"{number(summary['stage_share_error_pts_max'])} | {summary['factor_f1_matter_n']} |",
         f"| effect-free twins: false attribution | <= 5 % | "
         f"{pct(summary['twin_false_attribution'])} | {summary['twin_n']} |",
+        f"| effect-free twins naming their fabrics' density spread | – | "
+        f"{pct(summary.get('twin_named_fabric_spread'))} | {summary['twin_n']} |",
     ]
 
 
@@ -477,7 +483,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--kinds",
         help="a fixed plan, e.g. single:22,pair:6,open:4 (singles cycle through the library "
-        "in name order, so 21 cover every effect of the default wind scene); default: each "
+        "in name order, so 26 cover every effect of the default wind scene); default: each "
         "set's kind drawn from its seed. With a plan, --sets counts its sets: 0 means all of them",
     )
     parser.add_argument(

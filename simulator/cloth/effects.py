@@ -7,11 +7,17 @@ is independent of the others and documented in one line here.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
 
 from common.configs import switches_from_dict
 from common.effect_fields import strength
 
 __all__ = ["PHYSICS_EFFECT_NAMES", "PhysicsEffects", "strength"]
+
+_DENSITY_STREAM = 4
+"""Random stream of the density factors (1: wind yaw, 2: arm offset, 3: flatness noise)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,6 +40,9 @@ class PhysicsEffects:
     """Stiffness follows the measured strain/curvature samples; off = zero-strain values only."""
     anisotropic_stiffness: bool = True
     """Direction-dependent stiffness as measured; off = isotropic average."""
+    density_variation: bool = False
+    """Each cloth weighs its class's density times a log-uniform factor of log-width
+    ``density_spread``, one draw per simulation from its seed (:meth:`density_factors`)."""
 
     lift_coefficient: float = strength(0.5, "aero_lift", 0.1, 1.2)
     """Thin flat plates reach C_l of about 1 before stall."""
@@ -46,6 +55,8 @@ class PhysicsEffects:
     self_collision_radius: float = strength(0.012, "self_collision", 0.004, 0.02)
     """From about the cloth's thickness to a coarse mesh's edge length [m]."""
     internal_damping_beta: float = strength(2.0e-3, "internal_damping", 2.0e-4, 1.0e-2)
+    density_spread: float = strength(0.45, "density_variation", 0.1, 1.1)
+    """ln(heaviest / lightest): 0.45 is x 0.8-1.25; the ten measured fabrics span about 1.05."""
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -59,6 +70,7 @@ class PhysicsEffects:
             "gust_amplitude",
             "self_collision_radius",
             "internal_damping_beta",
+            "density_spread",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"effects.{name} must be >= 0, got {getattr(self, name)}")
@@ -70,6 +82,19 @@ class PhysicsEffects:
     def enabled(self) -> dict[str, bool]:
         """The switch values by name."""
         return {name: getattr(self, name) for name in PHYSICS_EFFECT_NAMES}
+
+    def density_factors(self, seeds: Sequence[int]) -> np.ndarray:
+        """Areal-density factor of each simulation: exp(spread * u), u uniform in [-1/2, 1/2].
+
+        Ones while ``density_variation`` is off. Fabrics of one stiffness class differ in
+        weight (the measured ones by a factor of almost 3), and a heavier cloth of the same
+        stiffness sags and flutters like a softer one; the factor comes from the seed alone
+        (a stream of its own), so the same simulation is the same cloth in every domain.
+        """
+        if not self.density_variation:
+            return np.ones(len(seeds))
+        u = [np.random.default_rng([int(s), _DENSITY_STREAM]).uniform(-0.5, 0.5) for s in seeds]
+        return np.exp(self.density_spread * np.asarray(u, dtype=np.float64))
 
     @staticmethod
     def from_dict(values: dict | None) -> PhysicsEffects:

@@ -82,6 +82,14 @@ def _check_positive(name: str, value: float) -> None:
         raise ValueError(f"{name} must be > 0, got {value!r}")
 
 
+def _vary_density(material: ClothMaterial, seeds, effects: PhysicsEffects) -> ClothMaterial:
+    """``material`` with each instance's density times its ``effects.density_factors``."""
+    if not effects.density_variation:
+        return material
+    factors = material.density.new_tensor(effects.density_factors(seeds))
+    return dataclasses.replace(material, density=material.density * factors)
+
+
 def _out_of_plane_noise(seeds, verts: int, amplitude: float, normal) -> torch.Tensor:
     """Seeded smooth-ish perturbation along ``normal`` [m], shape (B, V, 3)."""
     rows = [np.random.default_rng([int(s), 3]).uniform(-1, 1, verts) for s in seeds]
@@ -206,6 +214,7 @@ class ScenarioWind:
                 )
         mesh = self.mesh(dtype).to(device)
         pins = self.pin_indices().to(device)
+        material = _vary_density(material, seeds, effects)
         model = build_cloth_model(mesh, material, pins, kind=kind, effects=effects)
         yaw = []
         for seed in seeds:
@@ -356,7 +365,7 @@ class ScenarioArmBend:
         mesh = self.mesh(dtype).to(device)
         model = build_cloth_model(
             mesh,
-            material,
+            _vary_density(material, seeds, effects),
             torch.zeros(0, dtype=torch.int64, device=device),
             kind=kind,
             effects=effects,

@@ -170,3 +170,26 @@ def test_the_truth_is_refitted_from_its_sealed_strengths_over_the_scored_grid():
     assert defocus.start == 2.018 and defocus.options == (0.75, 2.018, 2.25, 3.0)
     assert pose.options == ("edge",) and pose.start == "edge"
     assert shadows.options == (None,) and shadows.start is None  # a switch: on
+
+
+def test_the_fabrics_density_spread_is_a_true_difference_of_every_set_that_has_one():
+    from sim2real.study.multi import FABRIC_SPREAD, _truth_factors, answer_effects
+
+    spread = {"density_range": [0.8, 1.25]}
+    twin = {"seed": 9, "kind": "twin", "effects": []}
+    (entry,) = answer_effects({**twin, **spread})
+    assert entry["name"] == FABRIC_SPREAD and entry["strength"] == pytest.approx(0.4463, abs=1e-4)
+    assert answer_effects(twin) == [] and answer_effects({**twin, "density_range": [1, 1]}) == []
+    names_density = _diagnosis(_joint({FABRIC_SPREAD: 0.4}, {FABRIC_SPREAD: "physics"}))
+    row = score_set(names_density, {**twin, **spread})
+    assert row["false_attribution"] is False and row["named_fabric_spread"] is True
+    assert score_set(names_density, twin)["false_attribution"] is True  # no spread in that set
+    both = _joint({FABRIC_SPREAD: 0.4, "scene.size": 0.2}, {**STAGES, FABRIC_SPREAD: "physics"})
+    assert score_set(_diagnosis(both), {**twin, **spread})["false_attribution"] is True
+    assert summarise([row])["twin_named_fabric_spread"] == 1.0
+    # in a multi set it is one more withheld effect, refitted and attributed with the others
+    multi = {**_multi_answer("scene.size"), **spread}
+    assert score_set(_diagnosis(both), multi)["factor_f1"] == 1.0
+    result = as_diagnosis({"candidates": {FABRIC_SPREAD: {"stage": "physics", "strengths": []}}})
+    (_, density) = _truth_factors(result, multi, spread=3)
+    assert density.name == FABRIC_SPREAD and density.start == entry["strength"]

@@ -225,6 +225,40 @@ def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_p
     assert np.abs(first[0].astype(int) - first[1]).mean() > 0.1
 
 
+def test_a_withheld_density_variation_is_in_the_labels_and_every_answer_has_its_range(
+    cloth, tmp_path
+):
+    # The labels give each cloth's density as simulated: the fabric's own draw times the
+    # withheld effect's factor; the answer records the fabrics' range for the scoring.
+    import json
+
+    from sim2real.study.seal import seal_set
+
+    densities = {}
+    for name, effects in (("plain", []), ("varied", [("physics.density_variation", 1.0)])):
+        answer = {
+            "seed": 4,
+            "kind": "single",
+            "effects": [
+                {"name": n, "stage": "physics", "strength": s, "library": True} for n, s in effects
+            ],
+        }
+        path, _ = seal_set(
+            tmp_path / name,
+            base=cloth[0],
+            seed=4,
+            videos=4,
+            clips_per_video=1,
+            clip_len=2,
+            answer=answer,
+        )
+        assert json.loads(path.read_text())["density_range"] == [0.8, 1.25]
+        rows = (tmp_path / name / "labels.csv").read_text().splitlines()[1:]
+        densities[name] = np.array([float(r.split(",")[2]) for r in rows])
+    ratio = np.log(densities["varied"] / densities["plain"])
+    assert np.all(np.abs(ratio) <= 0.5 + 1e-6) and np.ptp(ratio) > 0.05, ratio
+
+
 def test_a_sealed_video_can_take_its_image_effects_from_the_twins(cloth):
     spec, recorded, plan, stop = cloth
     library = candidate_library(spec)

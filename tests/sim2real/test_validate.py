@@ -23,6 +23,7 @@ def _result(top, explained=True, ranking=None, interval=(1.0, 4.0), residual="no
         "visual.white_balance": "camera",
         "physics.air_damping": "physics",
         "visual.shadows": "appearance",
+        "physics.density_variation": "physics",
     }
     return as_diagnosis(
         {
@@ -108,6 +109,11 @@ def test_open_sets_score_false_attribution_and_residual_stage():
     )
     assert summary["open_false_attribution"] == 0.5 and summary["open_n"] == 2
     assert summary["top1"] == 1.0 and summary["top1_n"] == 1
+    # the fabrics' density spread is in every set that has one: naming it alone is no error
+    spread = {**answer, "density_range": [0.8, 1.25]}
+    density = score_set(_result("physics.density_variation"), spread)
+    assert not density["false_attribution"]
+    assert score_set(_result("physics.density_variation"), answer)["false_attribution"]
 
 
 def test_kendall_tau_of_identical_and_reversed_rankings():

@@ -379,3 +379,34 @@ def test_density_scales_like_inverse_stiffness_at_rest_and_lighter_cloth_flutter
     )
     speed = np.linalg.norm(np.diff(seq.pos, axis=1), axis=-1).mean(axis=(1, 2))
     assert speed[0] > 1.2 * speed[1], speed
+
+
+def test_density_variation_is_the_cloth_at_its_seeds_density_factor():
+    # The effect re-weighs each cloth; simulating that density directly gives the same bytes.
+    basis = load_wang_material("camel-ponte-roma")
+    effects = PhysicsEffects(density_variation=True, density_spread=0.8)
+    seeds = [3, 11]
+    factors = effects.density_factors(seeds)
+    assert np.all(np.abs(np.log(factors)) <= 0.4) and abs(np.log(factors[0] / factors[1])) > 0.01
+    for scene in (
+        ScenarioWind(resolution_level=1, settle_time=0.05),
+        ScenarioArmBend(resolution_level=1, settle_time=0.05, bend_time=0.1),
+    ):
+        run = {"seeds": seeds, "wind_levels": [2, 2], "fps": 30, "record_time": 0.2}
+        one = ClothMaterial.from_wang(basis, density_mult=[1.0, 1.0])
+        weighed = ClothMaterial.from_wang(basis, density_mult=factors.tolist())
+        varied = simulate(scene, one, effects=effects, labels=[0, 1], **run)
+        direct = simulate(scene, weighed, labels=[0, 1], **run)
+        np.testing.assert_array_equal(varied.pos, direct.pos)
+
+
+def test_density_factors_are_log_uniform_per_seed_and_ones_when_off():
+    effects = PhysicsEffects(density_variation=True, density_spread=0.6)
+    logs = np.log(effects.density_factors(range(4000)))
+    assert logs.min() >= -0.3 and logs.max() <= 0.3
+    assert abs(logs.mean()) < 0.01 and abs(logs.var() - 0.6**2 / 12) < 0.002  # uniform's moments
+    # one draw per seed, whatever else is in the batch
+    assert effects.density_factors([7, 8])[1] == effects.density_factors([8])[0]
+    np.testing.assert_array_equal(PhysicsEffects().density_factors([1, 2]), [1.0, 1.0])
+    with pytest.raises(ValueError, match=r"effects\.density_spread must be >= 0"):
+        PhysicsEffects(density_spread=-0.1)
