@@ -176,6 +176,7 @@ def simulated_clips(
         p, k, q = prior_materials(spec, unit)
         seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k, q))  # cached by physics
         # key and materials: a visual or look candidate re-renders the nominal meshes
+        q = q * spec.physics.density_factors([s.seed for s in unit.sims])  # as simulated
         capsules = seq.capsules
         start, stop = spec.lead_in_frames, spec.frames_per_sim
         for b, sim in enumerate(unit.sims):

@@ -126,3 +126,22 @@ def test_a_density_set_draws_each_cloths_density_over_the_sets_span(nominal, tmp
     assert len(files) == 2
     assert np.array_equal(simulate_unit(spec, unit, cache, multipliers=(p, k)).pos, light.pos)
     assert sorted(cache.rglob("*.npz")) == files
+
+
+def test_a_density_variation_candidate_labels_each_cloth_with_the_density_it_was_given(
+    nominal, tmp_path
+):
+    candidate = candidate_library(nominal)["physics.density_variation"]
+    spec = candidate.apply(nominal, 1.0)
+    (unit,) = plan_units(spec)
+    clips = simulated_clips(spec, tmp_path / "meshes", clip_len=4, clip_stride=4)
+    factors = dict(
+        zip(
+            [s.sim_id for s in unit.sims],
+            spec.physics.density_factors([s.seed for s in unit.sims]),
+            strict=True,
+        )
+    )
+    basis = load_wang_material(BASIS_MATERIAL).density
+    assert clips.density.tolist() == pytest.approx([basis * factors[g] for g in clips.groups])
+    assert np.ptp(clips.density) > 0.01
