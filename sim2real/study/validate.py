@@ -111,9 +111,9 @@ def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) 
     row["detected"] = bool(result.scored_rungs)
     row["budget"] = result.inputs.budget
     if answer["kind"] == "open":
-        spread = {e["name"] for e in answer_effects(answer)}  # the fabrics' own, when any
+        fabric = {e["name"] for e in answer_effects(answer) if e["library"]}  # density spread
         row["false_attribution"] = bool(ranking.explained) and not (
-            set(ranking.explained_by or [ranking.top]) <= spread
+            set(ranking.explained_by or [ranking.top]) <= fabric
         )
         return row
     if answer["kind"] in ("multi", "twin"):
