@@ -195,30 +195,23 @@ def test_exposure_flicker_scales_whole_frames_of_the_plain_render(cloth):
         assert np.abs(flicker[k][lit[k]] - ratio * plain[k][lit[k]]).max() <= 1.5
 
 
+def _seal_single(spec, out, effects, stage, clip_len):
+    """Seal a four-video set (seed 4) withholding ``effects`` [(name, strength)] of ``stage``."""
+    from sim2real.study.seal import seal_set
+
+    effects = [{"name": n, "stage": stage, "strength": s, "library": True} for n, s in effects]
+    answer = {"seed": 4, "kind": "single", "effects": effects}
+    return seal_set(
+        out, base=spec, seed=4, videos=4, clips_per_video=1, clip_len=clip_len, answer=answer
+    )
+
+
 def test_a_sealed_rolling_shutter_set_has_the_frames_of_a_plain_one(cloth, tmp_path):
     # The library's rolling shutter reads the frames beside each clip; the set it writes has
     # as many frames as a plain one, and they differ from the plain ones.
-    from sim2real.study.seal import seal_set
-
-    spec = cloth[0]
     written = {}
     for name, effects in (("plain", []), ("rolling", [("visual.rolling_shutter", 1.0)])):
-        answer = {
-            "seed": 4,
-            "kind": "single",
-            "effects": [
-                {"name": n, "stage": "camera", "strength": s, "library": True} for n, s in effects
-            ],
-        }
-        seal_set(
-            tmp_path / name,
-            base=spec,
-            seed=4,
-            videos=4,
-            clips_per_video=1,
-            clip_len=4,
-            answer=answer,
-        )
+        _seal_single(cloth[0], tmp_path / name, effects, "camera", clip_len=4)
         written[name] = sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*"))
     assert written["plain"] == written["rolling"]
     first = [cv2.imread(str(tmp_path / n / "v000" / "frame_0001.png")) for n in written]
@@ -232,26 +225,9 @@ def test_a_withheld_density_variation_is_in_the_labels_and_every_answer_has_its_
     # withheld effect's factor; the answer records the fabrics' range for the scoring.
     import json
 
-    from sim2real.study.seal import seal_set
-
     densities = {}
     for name, effects in (("plain", []), ("varied", [("physics.density_variation", 1.0)])):
-        answer = {
-            "seed": 4,
-            "kind": "single",
-            "effects": [
-                {"name": n, "stage": "physics", "strength": s, "library": True} for n, s in effects
-            ],
-        }
-        path, _ = seal_set(
-            tmp_path / name,
-            base=cloth[0],
-            seed=4,
-            videos=4,
-            clips_per_video=1,
-            clip_len=2,
-            answer=answer,
-        )
+        path, _ = _seal_single(cloth[0], tmp_path / name, effects, "physics", clip_len=2)
         assert json.loads(path.read_text())["density_range"] == [0.8, 1.25]
         rows = (tmp_path / name / "labels.csv").read_text().splitlines()[1:]
         densities[name] = np.array([float(r.split(",")[2]) for r in rows])
