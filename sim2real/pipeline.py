@@ -970,10 +970,15 @@ def _joint_pool(
     """Every candidate as a factor the joint fit may choose, with the strengths it tries.
 
     The strengths are up to ``budget.joint_strengths`` of those the candidate was scored at,
-    spread over them, plus the one that alone removed most of S's divergence to R.
+    spread over them, plus the one that alone removed most of S's divergence to R. A
+    candidate whose fitted interval holds its neutral strength is left out, as the ranking
+    leaves it out (:attr:`CandidateResult.holds_neutral`): the data cannot tell it from its
+    absence, and a factor that can be set to "as S" closes the gap only by chance.
     """
     pool = []
     for (candidate, _), result in zip(plan, results, strict=True):
+        if result.holds_neutral:
+            continue
         values = list(result.strengths)
         closures = [_set_closure(nominal_oof, result, j, reference) for j in range(len(values))]
         best = values[int(np.argmax(closures))]

@@ -118,6 +118,12 @@ def answer(result: Diagnosis) -> str:
             f"closes {100 * top['best_score']:.0f} % of it."
         )
         parts.append(f"To close it, {_change(ranking.top, top['best_strength'])}.")
+    elif joint is not None and joint.tied:
+        parts.append(
+            f"{' and '.join(joint.tied)} each close the gap, and no one of them adds to "
+            "another: the data cannot tell which is at work, so none is named (footage that "
+            "varies the conditions, or a finer budget, would tell them apart)."
+        )
     else:
         parts.append(
             "No candidate, alone or with others, explains the gap: unexplained "
@@ -459,13 +465,16 @@ def _selection_lines(path: list[dict]) -> list[str]:
     for step in (s for s in path if "step" in s):
         measured = sorted(step["measured"].items(), key=lambda kv: -kv[1])
         tried = ", ".join(f"{n} {100 * v:.0f} %" for n, v in measured)
-        rows.append([str(step["step"]), step["added"] or "none (stop)", tried])
+        stop = f"none (tied: {', '.join(step['tied'])})" if step.get("tied") else "none (stop)"
+        rows.append([str(step["step"]), step["added"] or stop, tried])
     if not rows:
         return []
     return [
         "How the factors were chosen: at each step every candidate was screened on top of the "
         "factors already chosen, and these were built and measured (closure with the "
-        "addition); the best was added when it closed at least 5 % more.",
+        "addition); the best was added when it closed at least 5 % more and could be told "
+        "from every addition it did not clearly beat (it still adds on top of it; else the "
+        "step is tied and adds none).",
         "",
         markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",

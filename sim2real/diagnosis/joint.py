@@ -305,7 +305,9 @@ def select(
     best screened strengths, the best of each stage first (:func:`_round_robin`), and adds
     the best measured one that qualifies: it closes at least ``gain`` more of the gap, its
     group-bootstrap interval of the gain is above 0 and, for a factor that re-simulates, the
-    closure beats ``floor`` (what S' closes by chance). Stops after ``top`` factors or a step
+    closure beats ``floor`` (what S' closes by chance). It must also be told from every
+    rival it does not clearly beat (:func:`_substitutes`); a step that cannot tell them
+    apart records them as ``tied`` and adds none. Stops after ``top`` factors or a step
     without an addition.
 
     Returns:
@@ -335,21 +337,61 @@ def select(
         ranked = sorted(zip(shortlist, values, strict=True), key=lambda nv: -nv[1].closure)
         kept = [(n, v) for n, v in ranked if _qualifies(by_name[n], v, value, gain, floor)]
         chosen, measured = (kept or ranked)[0]
-        added = bool(kept)
-        path.append(
-            {
-                "step": len(current) + 1,
-                "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
-                "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
-                "added": chosen if added else None,
-            }
-        )
+        step = {
+            "step": len(current) + 1,
+            "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
+            "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
+        }
+        twins = _substitutes(kept, current, best, by_name, evaluate, gain, floor)
+        added = bool(kept) and not twins
+        step["added"] = chosen if added else None
+        if twins:
+            step["tied"] = [chosen, *twins]
+        path.append(step)
         if not added:
             break
         current[chosen] = best[chosen][1]
         value = measured
     chosen_factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
     return chosen_factors, assignment(current), value, path
+
+
+def _substitutes(
+    kept: list[tuple[str, Value]],
+    current: dict[str, object],
+    best: dict[str, tuple[float, object]],
+    by_name: dict[str, Factor],
+    evaluate: Evaluate,
+    gain: float,
+    floor: float,
+) -> list[str]:
+    """The qualifying rivals the leader of a step cannot be told from (empty: add it).
+
+    A rival is a qualifying addition whose closure the leader's does not beat by a
+    group-bootstrap interval above 0. The leader is told from it only when, added on top of
+    the rival, it still qualifies: it explains something the rival does not. Otherwise
+    (a rival that shares its setting, or one that leaves the leader nothing to add) the
+    data cannot say which of the two is at work, and naming the first in list order would
+    be a guess.
+    """
+    if not kept:
+        return []
+    leader, lead = kept[0]
+    rivals = [(n, v) for n, v in kept[1:] if _interval(lead.replicates - v.replicates)[0] <= 0]
+    shared = [n for n, _ in rivals if by_name[n].setting == by_name[leader].setting]
+    paired = [(n, v) for n, v in rivals if n not in shared]
+    both = (
+        evaluate(
+            [assignment({**current, leader: best[leader][1], n: best[n][1]}) for n, _ in paired]
+        )
+        if paired
+        else []
+    )
+    return shared + [
+        n
+        for (n, v), pair in zip(paired, both, strict=True)
+        if not _qualifies(by_name[leader], pair, v, gain, floor)
+    ]
 
 
 def _qualifies(factor: Factor, measured: Value, current: Value, gain: float, floor: float) -> bool:
@@ -413,6 +455,9 @@ class JointFit:
     """The selection's steps (:func:`select`), then the ascent's (:func:`calibrate`)."""
     sets: int
     """Distinct assignments scored."""
+    tied: list[str] = dataclasses.field(default_factory=list)
+    """The additions the last selection step could not tell apart (none added for them):
+    each closes the gap left as well as the others, and none adds to another."""
 
     @property
     def unexplained(self) -> float:
@@ -429,9 +474,16 @@ class JointFit:
 
     def sentence(self) -> str:
         """The answer in words: the factors with their shares, then the unexplained rest."""
+        tied = (
+            f" ({', '.join(self.tied)} each close it as well as the others, and the data "
+            "cannot tell which is at work)"
+            if self.tied
+            else ""
+        )
         if not self.shapley:
             return (
-                "no combination of candidates closes a share of the gap that matters: "
+                "no combination of candidates closes a share of the gap that matters"
+                f" and can be told from the rest{tied}: "
                 f"{100 * self.unexplained:.0f} % is unexplained"
             )
         parts = [
@@ -443,7 +495,7 @@ class JointFit:
         return (
             f"the calibrated simulator closes {100 * self.closure:.0f} % of the gap: "
             + ", ".join(parts)
-            + f"; {100 * self.unexplained:.0f} % is unexplained"
+            + f"; {100 * self.unexplained:.0f} % is unexplained{tied}"
         )
 
     def to_json(self) -> dict:
@@ -483,6 +535,7 @@ class JointFit:
             shapley_interval=pairs(data["shapley_interval"]),
             path=list(data["path"]),
             sets=int(data["sets"]),
+            tied=list(data.get("tied", [])),
         )
 
 
@@ -581,10 +634,12 @@ def fit_jointly(
         return [memo[a] for a in batch]
 
     path: list[dict] = []
+    tied: list[str] = []
     if screen is not None:
         factors, _, _, path = select(
             factors, cached, screen, top=top, verify=verify, gain=matters, floor=floor
         )
+        tied = list(path[-1].get("tied", [])) if path else []
     calibrated, value, steps = calibrate(factors, cached, rounds=rounds, tolerance=tolerance)
     reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
         calibrated, value, cached, matters=matters
@@ -603,4 +658,5 @@ def fit_jointly(
         shapley_interval=shapley_interval,
         path=path + steps,
         sets=len(memo),
+        tied=tied,
     )

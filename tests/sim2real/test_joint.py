@@ -198,7 +198,7 @@ def test_selection_keeps_one_factor_per_setting_and_respects_top(scene):
     _, evaluate, _ = scene
     pool = [
         Factor("shift", "physics", (0.5, 1.0, 1.5)),
-        Factor("shift_too", "physics", (1.0,), setting="shift"),
+        Factor("shift_too", "physics", (0.5,), setting="shift"),
         Factor("spread", "camera", (1.0, 2.0, 3.0)),
     ]
 
@@ -280,3 +280,50 @@ def test_only_a_factor_that_re_simulates_must_beat_what_a_fresh_draw_closes():
         ]
         found, _, _, _ = select(pool, evaluate, screen, top=2, verify=2, floor=0.4)
         assert [f.name for f in found] == chosen
+
+
+def _game(closure_of):
+    """``evaluate`` and ``screen`` of a game: an assignment's closure from its factor names."""
+
+    def evaluate(batch):
+        return [
+            Value(c, np.full(9, c) + np.linspace(0, 0.01, 9))
+            for c in (closure_of(frozenset(n for n, _ in a)) for a in batch)
+        ]
+
+    def screen(current, additions):
+        names = frozenset(n for n, _ in current)
+        return [closure_of(names | {n}) for n, _ in additions]
+
+    return evaluate, screen
+
+
+def test_a_step_adds_nothing_when_two_additions_explain_the_same_gap():
+    # a and b each close half the gap and together no more (two names for one cause): naming
+    # either would be a guess, so the step records the tie and adds neither
+    evaluate, screen = _game(lambda names: 0.5 if names & {"a", "b"} else 0.0)
+    pool = [Factor("a", "physics", (None,)), Factor("b", "scene", (None,))]
+    found, calibrated, value, path = select(pool, evaluate, screen, top=2, verify=2)
+    assert found == [] and calibrated == () and value.closure == 0.0
+    assert path[-1]["added"] is None and sorted(path[-1]["tied"]) == ["a", "b"]
+    fit = fit_jointly(pool, evaluate, screen=screen, top=2, verify=2)
+    assert fit.strengths == {} and sorted(fit.tied) == ["a", "b"]
+    assert "cannot tell which" in fit.sentence()
+    assert JointFit.from_json(fit.to_json()).tied == fit.tied
+
+
+def test_tied_additions_that_add_to_each_other_are_both_chosen():
+    # a and b close as much alone but different parts of the gap: both are factors
+    evaluate, screen = _game(lambda names: 0.4 * len(names & {"a", "b"}))
+    pool = [Factor("a", "physics", (None,)), Factor("b", "scene", (None,))]
+    found, _, value, path = select(pool, evaluate, screen, top=2, verify=2)
+    assert sorted(f.name for f in found) == ["a", "b"] and value.closure == pytest.approx(0.8)
+    assert all("tied" not in step for step in path)
+
+
+def test_a_clearly_better_addition_is_chosen_over_a_weaker_stand_in():
+    # b explains part of what a explains: a beats it by its interval and is added first
+    evaluate, screen = _game(lambda names: 0.7 if "a" in names else 0.3 if names else 0.0)
+    pool = [Factor("a", "physics", (None,)), Factor("b", "scene", (None,))]
+    found, _, _, path = select(pool, evaluate, screen, top=2, verify=2)
+    assert [f.name for f in found] == ["a"] and path[0]["added"] == "a"

@@ -57,4 +57,7 @@ def test_the_report_says_how_the_factors_were_chosen():
         "| 1 | visual.defocus_blur | visual.defocus_blur 46 %, scene.pose 9 % |",
         "| 2 | none (stop) | scene.pose 47 % |",
     ]
+    tied = {"step": 2, "added": None, "screened": {}, "measured": {"a": 0.5, "b": 0.5}}
+    table = next(s for s in _selection_lines([{**tied, "tied": ["a", "b"]}]) if "| step" in s)
+    assert str(table).splitlines()[2] == "| 2 | none (tied: a, b) | a 50 %, b 50 % |"
     assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show
