@@ -32,8 +32,11 @@ __all__ = [
     "MIN_BOX_SIDE",
     "MOTION_FEATURE_NAMES",
     "PIXEL_FEATURE_NAMES",
+    "check_box",
+    "check_clip",
     "is_int",
     "motion_features",
+    "normalised_frames",
     "pixel_features",
     "roi_box",
 ]
@@ -216,7 +219,8 @@ def _pad_span(lo: int, hi: int, pad: int, min_side: int, size: int) -> tuple[int
     return lo, hi
 
 
-def _check_clip(clip: np.ndarray, min_frames: int) -> np.ndarray:
+def check_clip(clip: np.ndarray, min_frames: int) -> np.ndarray:
+    """``clip`` as a uint8 RGB array (K, H, W, 3) with K >= ``min_frames``, else a ValueError."""
     clip = np.asarray(clip)
     if clip.dtype != np.uint8 or clip.ndim != 4 or clip.shape[-1] != 3:
         raise ValueError(
@@ -227,7 +231,8 @@ def _check_clip(clip: np.ndarray, min_frames: int) -> np.ndarray:
     return clip
 
 
-def _check_box(box, height: int, width: int) -> tuple[int, int, int, int]:
+def check_box(box, height: int, width: int) -> tuple[int, int, int, int]:
+    """``box`` as 4 ints inside an H x W frame, sides >= :data:`MIN_BOX_SIDE`, else a ValueError."""
     allowed = (
         f"box must be 4 integers (y0, y1, x0, x1) with 0 <= y0, y1 - y0 >= {MIN_BOX_SIDE}, "
         f"y1 <= H = {height}, 0 <= x0, x1 - x0 >= {MIN_BOX_SIDE}, x1 <= W = {width}"
@@ -354,8 +359,8 @@ def pixel_features(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarr
         ValueError: For a clip that is not uint8 (K, H, W, 3) or a box outside the frame or
             with a side below :data:`MIN_BOX_SIDE`.
     """
-    clip = _check_clip(clip, 1)
-    box = _check_box(box, clip.shape[1], clip.shape[2])
+    clip = check_clip(clip, 1)
+    box = check_box(box, clip.shape[1], clip.shape[2])
     y0, y1, x0, x1 = box
     frame_count = clip.shape[0]
     crop = clip[:, y0:y1, x0:x1]
@@ -435,7 +440,7 @@ def pixel_features(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarr
     return out
 
 
-def _normalised_frames(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+def normalised_frames(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
     """Luma inside the box, each frame standardised: z-scores, float32 (K, h, w)."""
     y0, y1, x0, x1 = box
     luma = clip[:, y0:y1, x0:x1].astype(np.float32) @ _LUMA.astype(np.float32)
@@ -512,9 +517,9 @@ def motion_features(clip: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
         ValueError: For a clip that is not uint8 (K, H, W, 3) with K >= 3, or a box outside
             the frame or with a side below :data:`MIN_BOX_SIDE`.
     """
-    clip = _check_clip(clip, 3)
-    box = _check_box(box, clip.shape[1], clip.shape[2])
-    z = _normalised_frames(clip, box)
+    clip = check_clip(clip, 3)
+    box = check_box(box, clip.shape[1], clip.shape[2])
+    z = normalised_frames(clip, box)
     flow = _dense_flow(z).astype(np.float64)  # (T, h, w, 2), T = K - 1
     fx, fy = flow[..., 0], flow[..., 1]
     magnitude = np.hypot(fx, fy)
