@@ -18,7 +18,7 @@ from common.errors import InputError
 from .manifest import read_json
 from .spec import DatasetSpec
 
-__all__ = ["RUN_HELP", "TrainedRun", "find_run"]
+__all__ = ["RUN_HELP", "TrainedRun", "dataset_spec", "find_run"]
 
 RUN_HELP = "a training run folder (logs/train/<run>) or a checkpoint file"
 
@@ -78,6 +78,14 @@ def find_run(run: str | Path, data_dir: str | Path | None = None) -> TrainedRun:
             ) from None
     elif not isinstance(data_dir, str | Path) or not str(data_dir).strip():
         raise InputError(f"data_dir must be a dataset folder or null, got {data_dir!r}")
+    return TrainedRun(checkpoint=checkpoint, data_dir=Path(data_dir), spec=dataset_spec(data_dir))
+
+
+def dataset_spec(data_dir: str | Path) -> DatasetSpec:
+    """The spec a dataset folder was generated from (its ``spec.json``).
+
+    An InputError names the file when there is none or it does not hold a spec.
+    """
     spec_path = Path(data_dir) / "spec.json"
     if not spec_path.is_file():
         raise InputError(
@@ -85,7 +93,6 @@ def find_run(run: str | Path, data_dir: str | Path | None = None) -> TrainedRun:
             "by datasets.generate); pass data_dir=<the training dataset folder>"
         )
     try:
-        spec = DatasetSpec.from_json(read_json(spec_path)["spec"])
+        return DatasetSpec.from_json(read_json(spec_path)["spec"])
     except Exception as err:  # unreadable JSON, a missing key, a bad field: not a spec
         raise InputError(f"data_dir: {spec_path} is not a dataset spec ({err})") from None
-    return TrainedRun(checkpoint=checkpoint, data_dir=Path(data_dir), spec=spec)
