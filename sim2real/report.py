@@ -16,6 +16,7 @@ from common.errors import InputError
 from common.files import atomic_write_bytes
 from models.report import markdown_table, write_json, write_text
 
+from .diagnosis import OPEN_SET_MIN_CLOSURE
 from .diagnosis.joint import JointFit
 from .report_html import render_html
 from .result import Diagnosis
@@ -102,7 +103,7 @@ def answer(result: Diagnosis) -> str:
         )
     joint, ranking = result.joint, result.ranking
     parts = []
-    if joint is not None and joint.shapley:
+    if joint is not None and joint.named:
         order = sorted(joint.shapley.items(), key=lambda kv: -kv[1])
         shares = ", ".join(f"{100 * v:.0f} % {joint.factors[n]} ({n})" for n, v in order)
         rest = f"{100 * joint.unexplained:.0f} % is unexplained"
@@ -118,6 +119,13 @@ def answer(result: Diagnosis) -> str:
             f"closes {100 * top['best_score']:.0f} % of it."
         )
         parts.append(f"To close it, {_change(ranking.top, top['best_strength'])}.")
+    elif joint is not None and joint.shapley:
+        parts.append(
+            f"Every factor calibrated together closes only {100 * joint.closure:.0f} % of the "
+            f"gap (a cause is named from {100 * OPEN_SET_MIN_CLOSURE:.0f} %): "
+            f"{', '.join(joint.shapley)} close part of it, and none is named; unexplained "
+            f"residual at stage {result.residual_stage}."
+        )
     elif joint is not None and joint.tied:
         parts.append(
             f"{' and '.join(joint.tied)} each close the gap, and no one of them adds to "

@@ -56,8 +56,8 @@ INITS = ("weights", "scratch")
 def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple[str, object]]:
     """(candidate, strength) pairs to add to the training data.
 
-    ``override`` ("a=1,b=2"), else every factor of the joint calibration that matters (the
-    calibrated simulator S*), else the explained top.
+    ``override`` ("a=1,b=2"), else every factor the joint calibration names (the calibrated
+    simulator S*, :attr:`JointFit.named`), else the explained top.
     """
     if override:
         pairs = []
@@ -65,8 +65,8 @@ def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple
             name, _, value = item.partition("=")
             pairs.append((name.strip(), None if value == "" else _number(value)))
         return pairs
-    if result.joint is not None and result.joint.strengths:
-        return list(result.joint.strengths.items())
+    if result.joint is not None and result.joint.named:
+        return list(result.joint.named.items())
     ranking = result.ranking
     if not ranking.explained:
         raise ValueError(

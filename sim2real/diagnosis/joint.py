@@ -34,6 +34,7 @@ import numpy as np
 from ..ladder import LadderFeatures
 from ..stats import CI_LEVEL, bootstrap_draws
 from .coalitions import shapley_values
+from .ranking import OPEN_SET_MIN_CLOSURE
 from .reference import Reference
 from .scoring import oof_divergence
 
@@ -460,6 +461,17 @@ class JointFit:
     each closes the gap left as well as the others, and none adds to another."""
 
     @property
+    def named(self) -> dict[str, object]:
+        """The factors the answer names, with their strengths.
+
+        Those of :attr:`strengths` when S* closes at least
+        :data:`~sim2real.diagnosis.ranking.OPEN_SET_MIN_CLOSURE` of the gap (what a single
+        candidate must close to be named), else none: factors that close a little of a gap
+        they leave mostly open are reported, not named.
+        """
+        return dict(self.strengths) if self.closure >= OPEN_SET_MIN_CLOSURE else {}
+
+    @property
     def unexplained(self) -> float:
         """Share of the gap S* leaves (1 - :attr:`closure`, at least 0)."""
         return max(0.0, 1.0 - self.closure)
@@ -492,8 +504,11 @@ class JointFit:
             + ")"
             for n, v in sorted(self.shapley.items(), key=lambda kv: -kv[1])
         ]
+        short = (
+            "" if self.named else f" (below {100 * OPEN_SET_MIN_CLOSURE:.0f} %: no factor is named)"
+        )
         return (
-            f"the calibrated simulator closes {100 * self.closure:.0f} % of the gap: "
+            f"the calibrated simulator closes {100 * self.closure:.0f} % of the gap{short}: "
             + ", ".join(parts)
             + f"; {100 * self.unexplained:.0f} % is unexplained{tied}"
         )

@@ -59,8 +59,8 @@ def answer_effects(answer: dict) -> list[dict]:
 
 def named_factors(result: Diagnosis) -> set[str]:
     """The factors a diagnosis names: its joint fit's, else its named effect (or coalition)."""
-    if result.joint is not None and result.joint.strengths:
-        return set(result.joint.strengths)
+    if result.joint is not None and result.joint.named:
+        return set(result.joint.named)
     ranking = result.ranking
     if not ranking.explained:
         return set()
@@ -69,7 +69,7 @@ def named_factors(result: Diagnosis) -> set[str]:
 
 def predicted_stage_shares(result: Diagnosis) -> dict[str, float]:
     """Stage -> share of the gap the diagnosis puts there."""
-    if result.joint is not None and result.joint.shapley:
+    if result.joint is not None and result.joint.named:
         return result.joint.stage_shares()
     ranking = result.ranking
     if not ranking.explained:

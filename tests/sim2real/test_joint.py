@@ -327,3 +327,15 @@ def test_a_clearly_better_addition_is_chosen_over_a_weaker_stand_in():
     pool = [Factor("a", "physics", (None,)), Factor("b", "scene", (None,))]
     found, _, _, path = select(pool, evaluate, screen, top=2, verify=2)
     assert [f.name for f in found] == ["a"] and path[0]["added"] == "a"
+
+
+def test_factors_of_a_simulator_that_leaves_most_of_the_gap_open_are_reported_not_named():
+    # a closes 30 % of the gap: it matters, and is attributed, but a cause is named only from
+    # the share a single candidate must close (OPEN_SET_MIN_CLOSURE)
+    evaluate, screen = _game(lambda names: 0.3 * len(names & {"a"}))
+    fit = fit_jointly([Factor("a", "physics", (None,))], evaluate, screen=screen, top=2)
+    assert fit.strengths == {"a": None} and fit.shapley == pytest.approx({"a": 0.3})
+    assert fit.named == {} and "no factor is named" in fit.sentence()
+    evaluate, screen = _game(lambda names: 0.7 * len(names & {"a"}))
+    fit = fit_jointly([Factor("a", "physics", (None,))], evaluate, screen=screen, top=2)
+    assert fit.named == {"a": None} and "no factor is named" not in fit.sentence()

@@ -125,8 +125,13 @@ def test_without_a_joint_fit_the_named_effect_counts_and_twins_score_false_attri
     twin = {"seed": 9, "kind": "twin", "effects": []}
     assert score_set(_diagnosis(None), twin)["false_attribution"] is False
     assert score_set(named, twin)["false_attribution"] is True
-    flagged = score_multi(_diagnosis(_joint({"scene.size": 0.2}, STAGES)), twin, None)
+    flagged = score_multi(_diagnosis(_joint({"scene.size": 0.7}, STAGES)), twin, None)
     assert flagged["false_attribution"] is True
+    # a calibrated simulator that closes 20 % of the gap names no factor (reported, not named)
+    partial = _diagnosis(_joint({"scene.size": 0.2}, STAGES))
+    assert partial.joint.strengths and named_factors(partial) == set()
+    assert score_multi(partial, twin, None)["false_attribution"] is False
+    assert predicted_stage_shares(partial) == {}
     summary = summarise([score_set(named, twin), score_set(_diagnosis(None), twin)])
     assert summary["twin_false_attribution"] == 0.5 and summary["twin_n"] == 2
     assert summary["open_n"] == 0
@@ -180,7 +185,7 @@ def test_the_fabrics_density_spread_is_a_true_difference_of_every_set_that_has_o
     (entry,) = answer_effects({**twin, **spread})
     assert entry["name"] == FABRIC_SPREAD and entry["strength"] == pytest.approx(0.4463, abs=1e-4)
     assert answer_effects(twin) == [] and answer_effects({**twin, "density_range": [1, 1]}) == []
-    names_density = _diagnosis(_joint({FABRIC_SPREAD: 0.4}, {FABRIC_SPREAD: "physics"}))
+    names_density = _diagnosis(_joint({FABRIC_SPREAD: 0.7}, {FABRIC_SPREAD: "physics"}))
     row = score_set(names_density, {**twin, **spread})
     assert row["false_attribution"] is False and row["named_fabric_spread"] is True
     assert score_set(names_density, twin)["false_attribution"] is True  # no spread in that set
