@@ -16,7 +16,6 @@ from common.errors import InputError
 from common.files import atomic_write_bytes
 from models.report import markdown_table, write_json, write_text
 
-from .diagnosis import OPEN_SET_MIN_CLOSURE
 from .diagnosis.joint import JointFit
 from .report_html import render_html
 from .result import Diagnosis
@@ -121,10 +120,10 @@ def answer(result: Diagnosis) -> str:
         parts.append(f"To close it, {_change(ranking.top, top['best_strength'])}.")
     elif joint is not None and joint.shapley:
         parts.append(
-            f"Every factor calibrated together closes only {100 * joint.closure:.0f} % of the "
-            f"gap (a cause is named from {100 * OPEN_SET_MIN_CLOSURE:.0f} %): "
-            f"{', '.join(joint.shapley)} close part of it, and none is named; unexplained "
-            f"residual at stage {result.residual_stage}."
+            f"Every factor calibrated together closes {100 * joint.closure:.0f} % of the gap "
+            f"(a fresh nominal draw {100 * joint.floor:.0f} %; a cause is named from "
+            f"{100 * joint.needed:.0f} %): {', '.join(joint.shapley)} close part of it, and "
+            f"none is named; unexplained residual at stage {result.residual_stage}."
         )
     elif joint is not None and joint.tied:
         parts.append(

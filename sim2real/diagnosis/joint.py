@@ -34,7 +34,7 @@ import numpy as np
 from ..ladder import LadderFeatures
 from ..stats import CI_LEVEL, bootstrap_draws
 from .coalitions import shapley_values
-from .ranking import OPEN_SET_MIN_CLOSURE
+from .ranking import OPEN_SET_MARGIN, OPEN_SET_MIN_CLOSURE
 from .reference import Reference
 from .scoring import oof_divergence
 
@@ -459,17 +459,27 @@ class JointFit:
     tied: list[str] = dataclasses.field(default_factory=list)
     """The additions the last selection step could not tell apart (none added for them):
     each closes the gap left as well as the others, and none adds to another."""
+    floor: float = 0.0
+    """Share of the gap a fresh nominal draw S' closes: how much sampling alone explains."""
 
     @property
     def named(self) -> dict[str, object]:
         """The factors the answer names, with their strengths.
 
-        Those of :attr:`strengths` when S* closes at least
-        :data:`~sim2real.diagnosis.ranking.OPEN_SET_MIN_CLOSURE` of the gap (what a single
-        candidate must close to be named), else none: factors that close a little of a gap
-        they leave mostly open are reported, not named.
+        Those of :attr:`strengths` when S* passes the open-set rule a single candidate must
+        pass to be named: it closes at least
+        :data:`~sim2real.diagnosis.ranking.OPEN_SET_MIN_CLOSURE` of the gap, and beats what
+        a fresh nominal draw closes (:attr:`floor`) by
+        :data:`~sim2real.diagnosis.ranking.OPEN_SET_MARGIN`. Else none: factors that close a
+        little of a gap they leave mostly open, or no more of it than sampling does, are
+        reported, not named.
         """
-        return dict(self.strengths) if self.closure >= OPEN_SET_MIN_CLOSURE else {}
+        return dict(self.strengths) if self.closure >= self.needed else {}
+
+    @property
+    def needed(self) -> float:
+        """The closure S* needs for its factors to be named (:attr:`named`)."""
+        return max(OPEN_SET_MIN_CLOSURE, self.floor + OPEN_SET_MARGIN)
 
     @property
     def unexplained(self) -> float:
@@ -504,9 +514,7 @@ class JointFit:
             + ")"
             for n, v in sorted(self.shapley.items(), key=lambda kv: -kv[1])
         ]
-        short = (
-            "" if self.named else f" (below {100 * OPEN_SET_MIN_CLOSURE:.0f} %: no factor is named)"
-        )
+        short = "" if self.named else f" (below {100 * self.needed:.0f} %: no factor is named)"
         return (
             f"the calibrated simulator closes {100 * self.closure:.0f} % of the gap{short}: "
             + ", ".join(parts)
@@ -551,6 +559,7 @@ class JointFit:
             path=list(data["path"]),
             sets=int(data["sets"]),
             tied=list(data.get("tied", [])),
+            floor=number(data.get("floor", 0.0)),
         )
 
 
@@ -674,4 +683,5 @@ def fit_jointly(
         path=path + steps,
         sets=len(memo),
         tied=tied,
+        floor=max(0.0, floor),
     )

@@ -339,3 +339,7 @@ def test_factors_of_a_simulator_that_leaves_most_of_the_gap_open_are_reported_no
     evaluate, screen = _game(lambda names: 0.7 * len(names & {"a"}))
     fit = fit_jointly([Factor("a", "physics", (None,))], evaluate, screen=screen, top=2)
     assert fit.named == {"a": None} and "no factor is named" not in fit.sentence()
+    # ... and beat what a fresh nominal draw closes by the open-set margin
+    fit = fit_jointly([Factor("a", "physics", (None,))], evaluate, screen=screen, top=2, floor=0.6)
+    assert fit.strengths == {"a": None} and fit.floor == 0.6 and fit.named == {}
+    assert JointFit.from_json(fit.to_json()).named == {}
