@@ -81,7 +81,7 @@ def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs) -> np.ndarr
 
 
 def clip_statistics(features: LadderFeatures, weights: np.ndarray | None = None) -> np.ndarray:
-    """Median and spread (interquartile range) over clips of every pixel and motion feature.
+    """Median and spread (interquartile range) over clips of every hand-made rung's feature.
 
     Args:
         features: A clip set on the ladder.

@@ -1,7 +1,8 @@
 """Features of a clip set on every rung of the representation ladder, cached by content.
 
 Rungs, from the image up: ``pixel`` (image statistics), ``motion`` (appearance-free optical
-flow and temporal spectra), then every recorded layer of the trained network
+flow and temporal spectra), ``tracks`` (trajectories of followed cloth points), then every
+recorded layer of the trained network
 (:mod:`sim2real.network`). A set's features are stored under a key that hashes everything
 that decides them (the set's spec or the real folder's files, the clip cut, the cloth box,
 the checkpoint's bytes and :data:`FEATURE_VERSION`), so a second diagnosis with one more
@@ -29,7 +30,7 @@ __all__ = ["FEATURE_VERSION", "LadderFeatures", "content_key", "file_digest", "l
 
 log = logging.getLogger(__name__)
 
-FEATURE_VERSION = 3
+FEATURE_VERSION = 4
 """Bump when a feature's definition changes (invalidates every cached feature file)."""
 
 _LABELS = ("groups", "class_id", "stiffness", "density")

@@ -24,6 +24,7 @@ from .features import (
     motion_features,
     pixel_features,
 )
+from .tracks import TRACK_FEATURE_NAMES, track_features
 
 __all__ = [
     "HAND_RUNGS",
@@ -60,8 +61,11 @@ class Rung:
 HAND_RUNGS: tuple[Rung, ...] = (
     Rung("pixel", "image", PIXEL_FEATURE_NAMES, pixel_features),
     Rung("motion", "dynamics", MOTION_FEATURE_NAMES, motion_features),
+    Rung("tracks", "dynamics", TRACK_FEATURE_NAMES, track_features),
 )
-"""The hand-made rungs, in ladder order."""
+"""The hand-made rungs, in ladder order. ``tracks`` reads only followed points of the cloth,
+so a texture, backdrop or sharpening change that moves ``motion``'s dense flow leaves it
+be (:mod:`sim2real.tracks`)."""
 
 
 def hand_rung_names() -> tuple[str, ...]:

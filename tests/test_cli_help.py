@@ -36,6 +36,7 @@ COMMANDS = [
     "benchmarks.input_audit",
     "benchmarks.sim2real_accuracy",
     "benchmarks.sim2real_multi_effect",
+    "benchmarks.sim2real_rung_invariance",
     "benchmarks.mujoco_cloth",
     "benchmarks.precond_bench",
     "benchmarks.render_bench",

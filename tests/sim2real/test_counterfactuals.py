@@ -18,6 +18,7 @@ from sim2real.diagnosis import rung_gaps
 from sim2real.features import MOTION_FEATURE_NAMES, PIXEL_FEATURE_NAMES
 from sim2real.ladder import LadderFeatures
 from sim2real.network import adapt_batchnorm, layer_features
+from sim2real.tracks import TRACK_FEATURE_NAMES
 from simulator.cloth.material import WANG54
 
 GROUPS, CLIPS = 18, 3
@@ -26,16 +27,17 @@ SHARP = PIXEL_FEATURE_NAMES.index("laplacian_std")
 
 
 def _domain(seed, noise=0.0, blur=0.0, groups=GROUPS):
-    """Pixel and motion rungs; 'noise' raises the noise feature, 'blur' lowers sharpness."""
+    """The hand-made rungs; 'noise' raises the noise feature, 'blur' lowers sharpness."""
     rng = np.random.default_rng(seed)
     ids = np.repeat([f"g{i}" for i in range(groups)], CLIPS)
     pixel = np.repeat(rng.normal(0, 0.3, (groups, len(PIXEL_FEATURE_NAMES))), CLIPS, 0)
     pixel += rng.normal(size=pixel.shape)
     motion = rng.normal(size=(len(ids), len(MOTION_FEATURE_NAMES)))
+    tracks = rng.normal(size=(len(ids), len(TRACK_FEATURE_NAMES)))
     pixel[:, NOISE] += noise
     pixel[:, SHARP] -= blur
     return LadderFeatures(
-        rungs={"pixel": pixel, "motion": motion},
+        rungs={"pixel": pixel, "motion": motion, "tracks": tracks},
         groups=ids,
         class_id=np.zeros(len(ids), int),
         stiffness=np.ones(len(ids)),
@@ -58,7 +60,7 @@ def test_statistics_are_named_medians_and_spreads():
     sim = _domain(0)
     stats = clip_statistics(sim)
     names = statistic_names()
-    assert stats.shape == (1, len(names)) == (1, 2 * (35 + 56))
+    assert stats.shape == (1, len(names)) == (1, 2 * (35 + 56 + 6))
     assert names[NOISE] == "median(pixel.noise_sigma_luma)"
     column = sim.rungs["pixel"][:, NOISE]
     assert stats[0, NOISE] == pytest.approx(np.quantile(column, 0.5, method="inverted_cdf"))

@@ -30,15 +30,16 @@ def _clips(count=3, frames=6, size=32):
 
 
 def test_the_registry_names_what_each_rung_reveals():
-    assert hand_rung_names() == ("pixel", "motion")
-    assert rungs_revealing("image") == ("pixel",) and rungs_revealing("dynamics") == ("motion",)
+    assert hand_rung_names() == ("pixel", "motion", "tracks")
+    assert rungs_revealing("image") == ("pixel",)
+    assert rungs_revealing("dynamics") == ("motion", "tracks")
     with pytest.raises(ValueError, match="reveals must be in"):
         Rung("x", "colour", ("a",), _mean_luma)
 
 
 def test_a_new_rung_is_measured_on_every_clip(with_brightness):
     features = clip_features(_clips(), (4, 28, 4, 28))
-    assert set(features) == {"pixel", "motion", "brightness"}
+    assert set(features) == {"pixel", "motion", "tracks", "brightness"}
     assert features["brightness"].shape == (3, 1)
 
     clips = ClipSet(
@@ -53,7 +54,7 @@ def test_a_new_rung_is_measured_on_every_clip(with_brightness):
 
 
 def test_a_new_rung_counts_as_hand_made_in_localisation_and_stage(with_brightness):
-    assert hand_rung_names() == ("pixel", "motion", "brightness")
+    assert hand_rung_names() == ("pixel", "motion", "tracks", "brightness")
     location = {"significant": ["brightness"], "first_significant_layer": None}
     assert scored_rungs(location) == ["brightness"]  # a hand-made rung, not a network layer
     stage = stage_of_residual(location, {}, {"brightness": 0.4})
