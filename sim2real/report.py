@@ -125,16 +125,16 @@ def answer(result: Diagnosis) -> str:
             f"{100 * joint.needed:.0f} %): {', '.join(joint.shapley)} close part of it, and "
             f"none is named; unexplained residual at stage {result.residual_stage}."
         )
-    elif joint is not None and joint.tied:
-        parts.append(
-            f"{' and '.join(joint.tied)} each close the gap, and no one of them adds to "
-            "another: the data cannot tell which is at work, so none is named (footage that "
-            "varies the conditions, or a finer budget, would tell them apart)."
-        )
-    else:
+    elif not (joint is not None and joint.tied):
         parts.append(
             "No candidate, alone or with others, explains the gap: unexplained "
             f"residual at stage {result.residual_stage}."
+        )
+    if joint is not None and joint.tied:
+        parts.append(
+            f"{' and '.join(joint.tied)} each close part of the gap, and no one of them adds "
+            "to another: the data cannot tell which is at work, so none of them is named "
+            "(footage that varies the conditions, or a finer budget, would tell them apart)."
         )
     shrink = result.shrink
     if shrink is None:
@@ -472,16 +472,20 @@ def _selection_lines(path: list[dict]) -> list[str]:
     for step in (s for s in path if "step" in s):
         measured = sorted(step["measured"].items(), key=lambda kv: -kv[1])
         tried = ", ".join(f"{n} {100 * v:.0f} %" for n, v in measured)
-        stop = f"none (tied: {', '.join(step['tied'])})" if step.get("tied") else "none (stop)"
-        rows.append([str(step["step"]), step["added"] or stop, tried])
+        tied = f"tied: {', '.join(step['tied'])}" if step.get("tied") else ""
+        if step["added"]:
+            added = step["added"] + (f" ({tied} before it)" if tied else "")
+        else:
+            added = f"none ({tied or 'stop'})"
+        rows.append([str(step["step"]), added, tried])
     if not rows:
         return []
     return [
         "How the factors were chosen: at each step every candidate was screened on top of the "
         "factors already chosen, and these were built and measured (closure with the "
         "addition); the best was added when it closed at least 5 % more and could be told "
-        "from every addition it did not clearly beat (it still adds on top of it; else the "
-        "step is tied and adds none).",
+        "from every addition it did not clearly beat (it still adds on top of it); additions "
+        "that could not be told apart are listed as tied.",
         "",
         markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",

@@ -307,9 +307,10 @@ def select(
     the best measured one that qualifies: it closes at least ``gain`` more of the gap, its
     group-bootstrap interval of the gain is above 0 and, for a factor that re-simulates, the
     closure beats ``floor`` (what S' closes by chance). It must also be told from every
-    rival it does not clearly beat (:func:`_substitutes`); a step that cannot tell them
-    apart records them as ``tied`` and adds none. Stops after ``top`` factors or a step
-    without an addition.
+    rival it does not clearly beat (:func:`_substitutes`); additions that cannot be told
+    apart are recorded as ``tied`` and the step takes the best one that can, if any (the
+    tied ones stay in the pool: a later step, with more of S* in place, may tell them
+    apart). Stops after ``top`` factors or a step without an addition.
 
     Returns:
         The chosen factors (in the order added, each starting at its chosen strength), their
@@ -337,19 +338,28 @@ def select(
         values = evaluate(trials)
         ranked = sorted(zip(shortlist, values, strict=True), key=lambda nv: -nv[1].closure)
         kept = [(n, v) for n, v in ranked if _qualifies(by_name[n], v, value, gain, floor)]
-        chosen, measured = (kept or ranked)[0]
         step = {
             "step": len(current) + 1,
             "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
             "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
         }
-        twins = _substitutes(kept, current, best, by_name, evaluate, gain, floor)
-        added = bool(kept) and not twins
-        step["added"] = chosen if added else None
-        if twins:
-            step["tied"] = [chosen, *twins]
+        chosen, measured, tied = None, None, []
+        for leader, lead in kept:  # the best that can be told from its rivals
+            if leader in tied:
+                continue
+            others = [(n, v) for n, v in kept if n != leader]
+            twins = _substitutes(
+                [(leader, lead), *others], current, best, by_name, evaluate, gain, floor
+            )
+            if not twins:
+                chosen, measured = leader, lead
+                break
+            tied += [n for n in (leader, *twins) if n not in tied]
+        step["added"] = chosen
+        if tied:
+            step["tied"] = tied
         path.append(step)
-        if not added:
+        if chosen is None:
             break
         current[chosen] = best[chosen][1]
         value = measured
@@ -457,8 +467,8 @@ class JointFit:
     sets: int
     """Distinct assignments scored."""
     tied: list[str] = dataclasses.field(default_factory=list)
-    """The additions the last selection step could not tell apart (none added for them):
-    each closes the gap left as well as the others, and none adds to another."""
+    """Additions the selection could not tell apart and never chose: each closed the gap
+    left as well as a rival, and neither added to the other."""
     floor: float = 0.0
     """Share of the gap a fresh nominal draw S' closes: how much sampling alone explains."""
 
@@ -663,7 +673,9 @@ def fit_jointly(
         factors, _, _, path = select(
             factors, cached, screen, top=top, verify=verify, gain=matters, floor=floor
         )
-        tied = list(path[-1].get("tied", [])) if path else []
+        chosen = {f.name for f in factors}
+        tied = list(dict.fromkeys(n for step in path for n in step.get("tied", [])))
+        tied = [n for n in tied if n not in chosen]
     calibrated, value, steps = calibrate(factors, cached, rounds=rounds, tolerance=tolerance)
     reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
         calibrated, value, cached, matters=matters

@@ -312,6 +312,21 @@ def test_a_step_adds_nothing_when_two_additions_explain_the_same_gap():
     assert JointFit.from_json(fit.to_json()).tied == fit.tied
 
 
+def test_a_tie_does_not_stop_the_selection_of_factors_that_can_be_told_apart():
+    # a and b explain the same half of the gap (two names for one cause), c another part:
+    # c is chosen, a and b are reported as tied and neither is named
+    def closure(names):
+        return 0.5 * bool(names & {"a", "b"}) + 0.3 * ("c" in names)
+
+    evaluate, screen = _game(closure)
+    pool = [Factor(n, s, (None,)) for n, s in (("a", "physics"), ("b", "scene"), ("c", "camera"))]
+    found, _, value, path = select(pool, evaluate, screen, top=3, verify=3)
+    assert [f.name for f in found] == ["c"] and value.closure == pytest.approx(0.3)
+    assert path[0]["added"] == "c" and sorted(path[0]["tied"]) == ["a", "b"]
+    fit = fit_jointly(pool, evaluate, screen=screen, top=3, verify=3)
+    assert set(fit.strengths) == {"c"} and sorted(fit.tied) == ["a", "b"]
+
+
 def test_tied_additions_that_add_to_each_other_are_both_chosen():
     # a and b close as much alone but different parts of the gap: both are factors
     evaluate, screen = _game(lambda names: 0.4 * len(names & {"a", "b"}))

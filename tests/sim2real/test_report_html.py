@@ -60,4 +60,7 @@ def test_the_report_says_how_the_factors_were_chosen():
     tied = {"step": 2, "added": None, "screened": {}, "measured": {"a": 0.5, "b": 0.5}}
     table = next(s for s in _selection_lines([{**tied, "tied": ["a", "b"]}]) if "| step" in s)
     assert str(table).splitlines()[2] == "| 2 | none (tied: a, b) | a 50 %, b 50 % |"
+    chose = {**tied, "added": "c", "tied": ["a", "b"], "measured": {"c": 0.3}}
+    table = next(s for s in _selection_lines([chose]) if "| step" in s)
+    assert str(table).splitlines()[2] == "| 2 | c (tied: a, b before it) | c 30 % |"
     assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show
