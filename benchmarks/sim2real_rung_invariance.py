@@ -37,7 +37,7 @@ from datasets.runs import dataset_spec
 from sim2real.domains import diagnosis_spec, simulated_clips
 from sim2real.features import roi_box
 from sim2real.pipeline import SIM_SEED_OFFSET, spanning_classes
-from sim2real.rungs import HAND_RUNGS
+from sim2real.rungs import HAND_RUNGS, clip_features
 from sim2real.stats.classifier import domain_auc
 from simulator.threads import use_process_threads
 
@@ -86,10 +86,6 @@ def halves_auc(
     return float(np.mean(values)), float(np.std(values))
 
 
-def _rung_features(frames: np.ndarray, box) -> dict[str, np.ndarray]:
-    return {r.name: np.stack([r.measure(clip, box) for clip in frames]) for r in HAND_RUNGS}
-
-
 @report_user_errors
 def main(argv: list[str] | None = None) -> None:
     """Command line (see the module docstring)."""
@@ -128,11 +124,11 @@ def main(argv: list[str] | None = None) -> None:
         "sharpen": lambda: sharpen(nominal.frames),
         "gusty_wind": rendered(physics=gusty),
     }
-    before = _rung_features(nominal.frames, box)
+    before = clip_features(nominal.frames, box)
     table = {}
     print(f"{'change':16s} " + " ".join(f"{r.name:>15s}" for r in HAND_RUNGS), flush=True)
     for name, make in changes.items():
-        after = _rung_features(make(), box)
+        after = clip_features(make(), box)
         table[name] = {
             r.name: halves_auc(before[r.name], after[r.name], nominal.groups, splits=args.splits)
             for r in HAND_RUNGS

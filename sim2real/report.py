@@ -101,6 +101,7 @@ def answer(result: Diagnosis) -> str:
             "with this budget: there is no gap to explain."
         )
     joint, ranking = result.joint, result.ranking
+    tied = joint.tied if joint is not None else []
     parts = []
     if joint is not None and joint.named:
         order = sorted(joint.shapley.items(), key=lambda kv: -kv[1])
@@ -125,14 +126,14 @@ def answer(result: Diagnosis) -> str:
             f"{100 * joint.needed:.0f} %): {', '.join(joint.shapley)} close part of it, and "
             f"none is named; unexplained residual at stage {result.residual_stage}."
         )
-    elif not (joint is not None and joint.tied):
+    elif not tied:
         parts.append(
             "No candidate, alone or with others, explains the gap: unexplained "
             f"residual at stage {result.residual_stage}."
         )
-    if joint is not None and joint.tied:
+    if tied:
         parts.append(
-            f"{' and '.join(joint.tied)} each close part of the gap, and no one of them adds "
+            f"{' and '.join(tied)} each close part of the gap, and no one of them adds "
             "to another: the data cannot tell which is at work, so none of them is named "
             "(footage that varies the conditions, or a finer budget, would tell them apart)."
         )

@@ -122,7 +122,7 @@ def clip_features(
 
     Returns:
         ``{rung name: float64 (N, feature count)}`` for every rung of :data:`HAND_RUNGS`
-        (``pixel`` (N, 35) and ``motion`` (N, 56) today).
+        (``pixel`` (N, 35), ``motion`` (N, 56) and ``tracks`` (N, 6) today).
 
     Raises:
         ValueError: For a bad clip or box (see the rungs' ``measure`` functions) or a count of
