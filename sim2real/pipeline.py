@@ -1025,7 +1025,7 @@ def _joint_fit(
 
     nominal_oof = nominal_scores(reference)
     floor = max(_set_closure(nominal_oof, null, 0, reference), 0.0)
-    return fit_jointly(
+    fit = fit_jointly(
         _joint_pool(plan, results, reference, budget, nominal_oof),
         evaluate,
         screen=screen,
@@ -1034,6 +1034,7 @@ def _joint_fit(
         floor=floor,
         rounds=budget.joint_rounds,
     )
+    return dataclasses.replace(fit, kernel_gap=bool(kernel_rungs(reference.gaps, reference.rungs)))
 
 
 def _score_plan(plan: list[tuple], bank: SetBank, reference: Reference) -> list:

@@ -119,6 +119,14 @@ def answer(result: Diagnosis) -> str:
             f"closes {100 * top['best_score']:.0f} % of it."
         )
         parts.append(f"To close it, {_change(ranking.top, top['best_strength'])}.")
+    elif joint is not None and joint.shapley and not joint.kernel_gap:
+        parts.append(
+            f"Every factor calibrated together closes {100 * joint.closure:.0f} % of the gap "
+            "the classifier sees, but the kernel distance lies at its floor on every scored "
+            f"rung: the gap is too weak to attribute, and {', '.join(joint.shapley)} "
+            f"{'is' if len(joint.shapley) == 1 else 'are'} not named; unexplained residual "
+            f"at stage {result.residual_stage}."
+        )
     elif joint is not None and joint.shapley:
         parts.append(
             f"Every factor calibrated together closes {100 * joint.closure:.0f} % of the gap "
@@ -228,6 +236,14 @@ def verdict(result: Diagnosis) -> str:
                 "coalition it leads is named."
             )
         parts.append(f"Unexplained residual at stage {result.residual_stage}.")
+    elif ranking.look_alike and not ranking.kernel_rungs:
+        top = result.candidates[ranking.top]
+        parts.append(
+            f"{ranking.top} closes {100 * top['best_score']:.0f} % of the classifier gap, "
+            "but on no scored rung does the kernel distance lie above its floor: the gap is "
+            "too weak to attribute, so no cause is named. "
+            f"Unexplained residual at stage {result.residual_stage}."
+        )
     elif ranking.look_alike:
         top = result.candidates[ranking.top]
         parts.append(

@@ -471,6 +471,10 @@ class JointFit:
     left as well as a rival, and neither added to the other."""
     floor: float = 0.0
     """Share of the gap a fresh nominal draw S' closes: how much sampling alone explains."""
+    kernel_gap: bool = True
+    """Whether the kernel distance lies above its floor on a scored rung; without it the gap
+    is too weak to attribute and no factor is named (as for a single candidate,
+    :func:`~sim2real.diagnosis.ranking.agrees`)."""
 
     @property
     def named(self) -> dict[str, object]:
@@ -480,11 +484,12 @@ class JointFit:
         pass to be named: it closes at least
         :data:`~sim2real.diagnosis.ranking.OPEN_SET_MIN_CLOSURE` of the gap, and beats what
         a fresh nominal draw closes (:attr:`floor`) by
-        :data:`~sim2real.diagnosis.ranking.OPEN_SET_MARGIN`. Else none: factors that close a
-        little of a gap they leave mostly open, or no more of it than sampling does, are
+        :data:`~sim2real.diagnosis.ranking.OPEN_SET_MARGIN`, on a gap the kernel distance
+        sees (:attr:`kernel_gap`). Else none: factors that close a little of a gap they leave
+        mostly open, no more of it than sampling does, or a gap only the classifier sees, are
         reported, not named.
         """
-        return dict(self.strengths) if self.closure >= self.needed else {}
+        return dict(self.strengths) if self.kernel_gap and self.closure >= self.needed else {}
 
     @property
     def needed(self) -> float:
@@ -524,7 +529,13 @@ class JointFit:
             + ")"
             for n, v in sorted(self.shapley.items(), key=lambda kv: -kv[1])
         ]
-        short = "" if self.named else f" (below {100 * self.needed:.0f} %: no factor is named)"
+        short = (
+            ""
+            if self.named
+            else f" (below {100 * self.needed:.0f} %: no factor is named)"
+            if self.kernel_gap
+            else " (the kernel distance does not see the gap: no factor is named)"
+        )
         return (
             f"the calibrated simulator closes {100 * self.closure:.0f} % of the gap{short}: "
             + ", ".join(parts)
@@ -570,6 +581,7 @@ class JointFit:
             sets=int(data["sets"]),
             tied=list(data.get("tied", [])),
             floor=number(data.get("floor", 0.0)),
+            kernel_gap=bool(data.get("kernel_gap", True)),
         )
 
 

@@ -41,7 +41,8 @@ OPEN_SET_MARGIN = 0.15
 KERNEL_MIN_CLOSURE = OPEN_SET_MIN_CLOSURE
 """A named cause must also close this share of the kernel distance (:func:`kernel_closure`),
 at a strength inside its interval (:func:`kernel_strengths`): a look-alike moves the few
-directions the classifier sees but not the whole distribution
+directions the classifier sees but not the whole distribution. Where no scored rung's kernel
+distance lies above its floor, the gap is too weak to attribute and nothing is named
 (docs/design/sim2real-kernel-check.md)."""
 
 
@@ -110,8 +111,13 @@ def kernel_strengths(result: CandidateResult, threshold: float) -> list[int]:
 
 
 def agrees(kernel: float | None) -> bool:
-    """Whether a kernel closure (:func:`kernel_closure`) confirms a cause."""
-    return kernel is None or kernel >= KERNEL_MIN_CLOSURE
+    """Whether a kernel closure (:func:`kernel_closure`) confirms a cause.
+
+    ``None`` (no scored rung's kernel distance above its floor) does not: a gap only the
+    classifier sees is one noisy statistic, and effect-free twins showed that any candidate
+    that widens S can close it.
+    """
+    return kernel is not None and kernel >= KERNEL_MIN_CLOSURE
 
 
 def explains_together(
@@ -161,7 +167,8 @@ class Ranking(Section):
     kernel_threshold: float
     """The least kernel closure that confirms a cause."""
     look_alike: bool
-    """The top candidate closes the classifier gap but not the kernel distance."""
+    """The top candidate closes the classifier gap but not the kernel distance (or, with no
+    :attr:`kernel_rungs`, the kernel distance does not see the gap)."""
     neutral_in_interval: bool
     """The top candidate's interval holds its neutral strength (not named)."""
     confusable_with_top: list[str]

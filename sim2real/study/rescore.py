@@ -74,8 +74,15 @@ def decide_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE
 
 
 def decided_again(report: Diagnosis, *, min_closure: float = OPEN_SET_MIN_CLOSURE) -> Diagnosis:
-    """``report`` with its ranking (:func:`decide_again`) and its residual stage decided again."""
+    """``report`` with its ranking, residual stage and joint fit's naming decided again.
+
+    The ranking by :func:`decide_again`; the joint fit names factors only where a scored
+    rung has a kernel gap (:attr:`~sim2real.diagnosis.joint.JointFit.kernel_gap`).
+    """
     ranking = decide_again(report, min_closure=min_closure)
     gaps = {name: gap["corrected_auc"] for name, gap in report.rungs.items()}
     stage = stage_of_residual(report.location.to_json(), ranking.stage_scores, gaps)
-    return dataclasses.replace(report, ranking=ranking, residual_stage=stage)
+    joint = report.joint
+    if joint is not None:
+        joint = dataclasses.replace(joint, kernel_gap=bool(ranking.kernel_rungs))
+    return dataclasses.replace(report, ranking=ranking, residual_stage=stage, joint=joint)

@@ -2,6 +2,7 @@
 
 import dataclasses
 
+from sim2real.diagnosis.joint import JointFit
 from sim2real.result import Diagnosis, DiagnosisInputs, Ranking
 
 RANKING = {
@@ -19,6 +20,26 @@ RANKING = {
     "confusable_with_top": [],
     "stage_scores": {},
 }
+
+
+def joint_of(strengths: dict, closure: float, **fields) -> JointFit:
+    """A joint fit of ``strengths`` (name -> value) closing ``closure``, all of it theirs."""
+    share = closure / len(strengths)
+    values = {
+        "factors": dict.fromkeys(strengths, "camera"),
+        "strengths": dict(strengths),
+        "strength_interval": {},
+        "closure": closure,
+        "closure_interval": (closure, closure),
+        "rung_closure": {"pixel": closure},
+        "reset": {},
+        "reset_interval": {},
+        "shapley": dict.fromkeys(strengths, share),
+        "shapley_interval": {},
+        "path": [],
+        "sets": 2,
+    }
+    return JointFit(**{**values, **fields})
 
 
 def ranking_of(**fields) -> Ranking:

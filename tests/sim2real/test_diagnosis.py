@@ -31,7 +31,7 @@ from sim2real.diagnosis import (
     stage_of_residual,
 )
 from sim2real.ladder import LadderFeatures
-from tests.sim2real.reports import as_diagnosis
+from tests.sim2real.reports import as_diagnosis, joint_of
 
 GROUPS, CLIPS, DIM = 16, 3, 8
 PROJECTION = np.random.default_rng(99).normal(size=(8, 6))
@@ -518,9 +518,10 @@ def test_a_look_alike_that_the_classifier_cannot_tell_apart_fails_the_kernel_che
     ranking = rank_candidates([right, null], null, kernel_rungs(gaps, rungs))
     assert ranking.top == "visual.right"
     assert ranking.explained and not ranking.look_alike
-    # with no rung above its MMD² floor the kernel cannot refute: the classifier decides
+    # with no rung above its MMD² floor the gap is too weak to attribute: nothing is named
     assert kernel_closure(alike, []) is None
-    assert rank_candidates([right], null, []).kernel_closure is None
+    unseen = rank_candidates([right], null, [])
+    assert unseen.kernel_closure is None and not unseen.explained and unseen.look_alike
 
 
 def test_the_kernel_check_confirms_at_a_strength_the_classifier_cannot_tell_from_the_best(
@@ -649,15 +650,20 @@ def test_a_cause_must_close_the_open_set_threshold_of_the_gap(closure, named):
     # which closed 0.57 of the classifier gap and 0.84 of the kernel distance; the threshold
     # is 0.6 since. The null draw closes little here, so the threshold is the constant.
     def fit(name, score):
-        return CandidateResult(name, "camera", (1.0,), {}, {}, [score])
+        return CandidateResult(name, "camera", (1.0,), {}, {"pixel": [0.9]}, [score])
 
     null = fit("S'", -0.2)
-    ranking = rank_candidates([fit("visual.frame_rate", closure), fit("b", 0.1)], null, [])
+    results = [fit("visual.frame_rate", closure), fit("b", 0.1)]
+    ranking = rank_candidates(results, null, ["pixel"])
     assert ranking.threshold == OPEN_SET_MIN_CLOSURE == 0.6
     assert ranking.top == "visual.frame_rate"
-    assert ranking.kernel_closure is None  # no rung above its MMD² floor: cannot refute
+    assert ranking.kernel_closure == 0.9  # the kernel distance confirms
     assert ranking.explained is named
     assert ranking.look_alike is False
+    # twin 66302 (effect-free, development): a gap only the classifier saw, closed by a
+    # candidate that widens S; with no kernel rung the gap is too weak to attribute
+    unseen = rank_candidates(results, null, [])
+    assert not unseen.explained and unseen.look_alike is named
 
 
 def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
@@ -670,7 +676,7 @@ def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
             stage,
             (0.1, 0.3),
             {"pixel": [distance, 0.02]},
-            {},
+            {"pixel": [score, 0.2]},
             [score, 0.2],
             closure_auc={"pixel": [score, 0.2]},
         )
@@ -682,7 +688,7 @@ def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
         fit("visual.white_balance", "camera", 0.0001, score=0.95),
     ]
     null = CandidateResult("S'", "null", (None,), {}, {}, [-1.0])
-    ranking = rank_candidates(results, null, [])
+    ranking = rank_candidates(results, null, ["pixel"])
     assert ranking.ranking == [
         "visual.specular",
         "physics.air_damping",
@@ -698,12 +704,12 @@ def test_a_tie_of_saturated_closures_is_ordered_by_the_kernel_distance():
         fit("scene.wind_yaw_jitter_deg", "scene", 0.0001), fit_interval=(0.0, 45.0), neutral=15.0
     )
     damping = fit("physics.air_damping", "physics", 0.0061)
-    ranking = rank_candidates([jitter, damping], null, [])
+    ranking = rank_candidates([jitter, damping], null, ["pixel"])
     assert ranking.ranking == ["physics.air_damping", "scene.wind_yaw_jitter_deg"]
     assert ranking.top == "physics.air_damping" and ranking.explained
     # a candidate that holds its neutral value still leads when it closes more
     ranking = rank_candidates(
-        [jitter, fit("physics.air_damping", "physics", 0.0061, 0.9)], null, []
+        [jitter, fit("physics.air_damping", "physics", 0.0061, 0.9)], null, ["pixel"]
     )
     assert ranking.top == "scene.wind_yaw_jitter_deg" and ranking.neutral_in_interval
 
@@ -726,14 +732,14 @@ def test_a_candidate_whose_interval_holds_its_neutral_value_is_not_named(interva
         "scene",
         (2.5, 15.0, 30.0),
         {},
-        {},
+        {"pixel": [0.9, 0.4, 0.2]},
         [0.9, 0.4, 0.2],
         fitted=2.5,
         fit_interval=interval,
         neutral=neutral,
     )
     null = CandidateResult("S'", "null", (None,), {}, {}, [-0.1])
-    ranking = rank_candidates([top, null], null, [])
+    ranking = rank_candidates([top, null], null, ["pixel"])
     assert top.holds_neutral is not named
     assert ranking.top == top.name and ranking.explained is named
     assert ranking.neutral_in_interval is not named and not ranking.look_alike
@@ -783,3 +789,41 @@ def test_the_verdict_says_why_a_candidate_that_closes_the_gap_is_not_named():
     assert "neither it nor a coalition it leads is named" in text
     assert "cannot tell it from its absence" not in text
     assert "Unexplained residual at stage physics or scene." in text
+
+
+def test_the_answer_says_a_gap_only_the_classifier_sees_is_too_weak_to_attribute():
+    from sim2real.report import answer, verdict
+
+    ranking = {
+        "explained": False,
+        "look_alike": True,
+        "neutral_in_interval": False,
+        "top": "visual.lighting_variation",
+        "threshold": 0.6,
+        "kernel_rungs": [],
+    }
+    result = {
+        "location": {
+            "significant": ["pixel"],
+            "gap_p": 0.01,
+            "alpha": 0.05,
+            "first_significant_layer": None,
+        },
+        "rungs": {"pixel": {"corrected_auc": 0.27}},
+        "ranking": ranking,
+        "candidates": {"visual.lighting_variation": {"stage": "appearance", "best_score": 1.0}},
+        "residual_stage": "appearance or camera",
+    }
+    result = as_diagnosis(result)
+    text = verdict(result)
+    assert "closes 100 % of the classifier gap" in text
+    assert "too weak to attribute, so no cause is named" in text
+    joint = joint_of(
+        {"visual.lighting_variation": 0.32},
+        0.99,
+        factors={"visual.lighting_variation": "appearance"},
+        kernel_gap=False,
+    )
+    text = answer(dataclasses.replace(result, joint=joint))
+    assert "too weak to attribute, and visual.lighting_variation is not named" in text
+    assert "change the simulator" not in text

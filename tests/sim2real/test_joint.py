@@ -358,3 +358,17 @@ def test_factors_of_a_simulator_that_leaves_most_of_the_gap_open_are_reported_no
     fit = fit_jointly([Factor("a", "physics", (None,))], evaluate, screen=screen, top=2, floor=0.6)
     assert fit.strengths == {"a": None} and fit.floor == 0.6 and fit.named == {}
     assert JointFit.from_json(fit.to_json()).named == {}
+
+
+def test_factors_that_close_a_gap_the_kernel_distance_does_not_see_are_not_named():
+    # effect-free twin 66302 (development): lighting variation closed 99 % of a pixel gap
+    # that only the classifier saw (MMD² under its floor); such a gap is too weak to attribute
+    evaluate, screen = _game(lambda names: 0.99 * len(names & {"a"}))
+    fit = fit_jointly([Factor("a", "appearance", (None,))], evaluate, screen=screen, top=2)
+    assert fit.named == {"a": None}
+    unseen = dataclasses.replace(fit, kernel_gap=False)
+    assert unseen.named == {} and unseen.shapley == fit.shapley  # still attributed
+    assert "kernel distance does not see the gap" in unseen.sentence()
+    assert JointFit.from_json(unseen.to_json()).named == {}
+    old = {k: v for k, v in fit.to_json().items() if k != "kernel_gap"}  # older reports
+    assert JointFit.from_json(old).named == {"a": None}

@@ -7,18 +7,19 @@ import math
 from sim2real.diagnosis import OPEN_SET_MARGIN, CandidateResult
 from sim2real.report import json_safe
 from sim2real.study.rescore import decide_again
-from tests.sim2real.reports import as_diagnosis
+from tests.sim2real.reports import as_diagnosis, joint_of
 
 
-def _fit(name, score, stage="camera", strengths=(1.0, 2.0)):
-    """A stored candidate closing ``score`` of the classifier gap at its second strength."""
+def _fit(name, score, stage="camera", strengths=(1.0, 2.0), kernel=0.9):
+    """A stored candidate closing ``score`` of the classifier gap at its second strength
+    (and ``kernel`` of the kernel distance on "pixel")."""
     scores = [score / 2, score]
     return CandidateResult(
-        name, stage, strengths, {"pixel": [0.1, 0.1]}, {"pixel": [score / 2, score]}, scores
+        name, stage, strengths, {"pixel": [0.1, 0.1]}, {"pixel": [kernel / 2, kernel]}, scores
     )
 
 
-def _report(fits, null_score=-0.2, kernel_rungs=(), shapley=None, stacked=None):
+def _report(fits, null_score=-0.2, kernel_rungs=("pixel",), shapley=None, stacked=None):
     """A stored report as JSON has it, ranked by today's rules at the default threshold."""
     from sim2real.diagnosis import rank_candidates
 
@@ -93,3 +94,13 @@ def test_a_stored_coalition_or_stacked_fit_is_decided_again():
     # a leader below the stacked fit's least closure needs none: replayed as unexplained
     weak, replayed = _decided(_report([_fit("visual.a", 0.2)]))
     assert not weak.explained and replayed
+
+
+def test_a_stored_joint_fit_is_named_only_where_the_kernel_distance_sees_the_gap():
+    from sim2real.study.rescore import decided_again
+
+    joint = joint_of({"visual.a": 2.0}, 0.9)
+    for rungs, named in [(("pixel",), {"visual.a": 2.0}), ((), {})]:
+        report = _report([_fit("visual.a", 0.9)], kernel_rungs=rungs)
+        report = dataclasses.replace(report, rungs={"pixel": {"corrected_auc": 0.3}}, joint=joint)
+        assert decided_again(report).joint.named == named

@@ -18,7 +18,9 @@ THRESHOLD = 0.5
 
 
 def _result(name, strengths, score):
-    return CandidateResult(name, "camera", tuple(strengths), {}, {}, list(score))
+    """Made-up closures, the kernel distance's on "pixel" equal to the classifier's."""
+    score = list(score)
+    return CandidateResult(name, "camera", tuple(strengths), {}, {"pixel": score}, score)
 
 
 class World:
@@ -94,7 +96,9 @@ def test_a_pair_explains_only_under_the_coalition_rules(case, pair, kernel, alon
 
 
 def test_a_leader_that_simulates_is_held_and_only_re_rendering_candidates_are_partners():
-    ranking = ranking_of(explained=False, top=LIFT.name, threshold=THRESHOLD)
+    ranking = ranking_of(
+        explained=False, top=LIFT.name, threshold=THRESHOLD, kernel_rungs=["pixel"]
+    )
     plan = [(LIFT, (0.1, 0.35, 1.2)), (BLUR, (0.1, 1.0)), (SHAKE, (0.001, 0.012))]
     results = [
         _result(LIFT.name, plan[0][1], (0.1, 0.45, 0.2)),
