@@ -34,9 +34,9 @@ import numpy as np
 from ..ladder import LadderFeatures
 from ..stats import CI_LEVEL, bootstrap_draws
 from .coalitions import shapley_values
-from .ranking import OPEN_SET_MARGIN, OPEN_SET_MIN_CLOSURE
+from .ranking import OPEN_SET_MARGIN, OPEN_SET_MIN_CLOSURE, kernel_rungs
 from .reference import Reference
-from .scoring import oof_divergence
+from .scoring import CONFUSABLE_WITHIN, oof_divergence
 
 __all__ = [
     "JOINT_TOLERANCE",
@@ -105,6 +105,9 @@ class Value:
     assignment, so differences and Shapley values get intervals too."""
     rungs: dict[str, float] = dataclasses.field(default_factory=dict)
     """Scored rung -> its share of the divergence removed (:func:`rung_closures`)."""
+    kernel: float | None = None
+    """Share of the kernel distance (MMD²) to R removed, averaged over the scored rungs with
+    a kernel gap (:func:`~sim2real.diagnosis.ranking.kernel_rungs`); ``None`` without one."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,7 +193,10 @@ def nominal_scores(reference: Reference) -> dict[str, np.ndarray]:
 
 
 def _set_scores(sets: Sequence[LadderFeatures], reference: Reference):
-    """S's and each set's out-of-fold scores against R per scored rung (one classifier fit)."""
+    """S's and each set's out-of-fold scores against R per scored rung, and kernel closures.
+
+    One classifier fit; the kernel closures are :attr:`Value.kernel`.
+    """
     sim = reference.nominal
     for features in sets:
         if features.groups.shape != sim.groups.shape or np.any(features.groups != sim.groups):
@@ -198,12 +204,17 @@ def _set_scores(sets: Sequence[LadderFeatures], reference: Reference):
     scored = reference.score("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets])
     nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
     own = [{rung: oof[i + 1] for rung, oof in scored.scores_oof.items()} for i in range(len(sets))]
-    return nominal, own
+    on = kernel_rungs(reference.gaps, reference.rungs)
+    kernel = [
+        float(np.mean([scored.closure[r][i + 1] for r in on])) if on else None
+        for i in range(len(sets))
+    ]
+    return nominal, own, kernel
 
 
 def point_closures(sets: Sequence[LadderFeatures], reference: Reference) -> list[float]:
     """The :func:`divergence_closure` of each set, without intervals (for screening)."""
-    nominal, own = _set_scores(sets, reference)
+    nominal, own, _ = _set_scores(sets, reference)
     return [float(divergence_closure(nominal, scores, reference)) for scores in own]
 
 
@@ -218,7 +229,7 @@ def closure_values(
     replicate.
     """
     sim, real = reference.nominal, reference.real
-    nominal, own = _set_scores(sets, reference)
+    nominal, own, kernel = _set_scores(sets, reference)
     rng = np.random.default_rng([seed, 64])
     codes_x = np.unique(sim.groups, return_inverse=True)[1].reshape(-1)
     codes_y = np.unique(real.groups, return_inverse=True)[1].reshape(-1)
@@ -230,8 +241,9 @@ def closure_values(
             float(divergence_closure(nominal, scores, reference)),
             divergence_closure(nominal, scores, reference, weights),
             {k: float(v) for k, v in rung_closures(nominal, scores, reference).items()},
+            k,
         )
-        for scores in own
+        for scores, k in zip(own, kernel, strict=True)
     ]
 
 
@@ -343,7 +355,8 @@ def select(
             "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
             "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
         }
-        chosen, measured, tied = None, None, []
+        chosen, measured, tied, beaten = None, None, [], []
+        values_of = dict(kept)
         for leader, lead in kept:  # the best that can be told from its rivals
             if leader in tied:
                 continue
@@ -351,6 +364,13 @@ def select(
             twins = _substitutes(
                 [(leader, lead), *others], current, best, by_name, evaluate, gain, floor
             )
+            if any(_kernel_apart(values_of[n], lead) for n in twins):
+                beaten.append(leader)  # a twin removes clearly more of the kernel distance
+                continue
+            apart = [n for n in twins if _kernel_apart(lead, values_of[n])]
+            if apart:
+                step.setdefault("kernel_apart", {})[leader] = apart
+            twins = [n for n in twins if n not in apart]
             if not twins:
                 chosen, measured = leader, lead
                 break
@@ -358,6 +378,8 @@ def select(
         step["added"] = chosen
         if tied:
             step["tied"] = tied
+        if beaten:
+            step["kernel_beaten"] = beaten
         path.append(step)
         if chosen is None:
             break
@@ -403,6 +425,18 @@ def _substitutes(
         for (n, v), pair in zip(paired, both, strict=True)
         if not _qualifies(by_name[leader], pair, v, gain, floor)
     ]
+
+
+def _kernel_apart(lead: Value, rival: Value) -> bool:
+    """Whether the kernel distance tells a tied leader from a rival.
+
+    It does when the leader removes at least
+    :data:`~sim2real.diagnosis.scoring.CONFUSABLE_WITHIN` more of it, as the ranking orders a
+    tie of classifier closures by the kernel distance.
+    """
+    if lead.kernel is None or rival.kernel is None:
+        return False
+    return lead.kernel - rival.kernel >= CONFUSABLE_WITHIN
 
 
 def _qualifies(factor: Factor, measured: Value, current: Value, gain: float, floor: float) -> bool:

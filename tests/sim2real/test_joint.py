@@ -372,3 +372,36 @@ def test_factors_that_close_a_gap_the_kernel_distance_does_not_see_are_not_named
     assert JointFit.from_json(unseen.to_json()).named == {}
     old = {k: v for k, v in fit.to_json().items() if k != "kernel_gap"}  # older reports
     assert JointFit.from_json(old).named == {"a": None}
+
+
+def test_a_tie_is_broken_by_the_kernel_distance_when_it_tells_the_two_apart():
+    # development set 64001: gusty wind and aero lift closed the divergence alike (24 %, 23 %)
+    # and neither added to the other, while the tracks rung's kernel distance closed 96 %
+    # against 47 %; the ranking orders such ties by the kernel distance too
+    kernel_of = {"a": 0.4, "b": 0.25}
+
+    def closure(names):
+        return 0.5 if names & {"a", "b"} else 0.0
+
+    base, screen = _game(closure)
+
+    def evaluate(batch):
+        out = []
+        for a, v in zip(batch, base(batch), strict=True):
+            names = [n for n, _ in a]
+            k = max((kernel_of[n] for n in names), default=0.0)
+            out.append(dataclasses.replace(v, kernel=k))
+        return out
+
+    pool = [Factor("a", "physics", (None,)), Factor("b", "scene", (None,))]
+    found, _, _, path = select(pool, evaluate, screen, top=2, verify=2)
+    assert [f.name for f in found] == ["a"] and path[0]["kernel_apart"] == {"a": ["b"]}
+    assert "tied" not in path[0]
+    # the second best by the divergence wins where the kernel distance prefers it
+    kernel_of.update(a=0.25, b=0.4)
+    found, _, _, path = select(pool, evaluate, screen, top=2, verify=2)
+    assert [f.name for f in found] == ["b"] and path[0]["kernel_beaten"] == ["a"]
+    # within CONFUSABLE_WITHIN they stay tied
+    kernel_of.update(a=0.35, b=0.3)
+    found, _, _, path = select(pool, evaluate, screen, top=2, verify=2)
+    assert found == [] and sorted(path[0]["tied"]) == ["a", "b"]
