@@ -35,7 +35,6 @@ from .diagnosis import (
     explains_together,
     fit_strength,
     kernel_closure,
-    kernel_rungs,
     localise,
     probe_transfer,
     rank_candidates,
@@ -703,7 +702,7 @@ def decide(
     """
     plan, results = fits.plan, fits.results
     with _timed(bank.timing, "fit"):
-        ranking = rank_candidates(results, fits.null, kernel_rungs(reference.gaps, reference.rungs))
+        ranking = rank_candidates(results, fits.null, reference.kernel_rungs)
         residual = _residual_gap(ranking, plan, results, bank, reference.real, budget, alpha, seed)
     coalitions = _coalition_plan(plan, results, budget.shapley_top)
     bank.build([SetJob(label, spec_of(spec)) for label, spec_of in coalitions.items()])
@@ -939,7 +938,7 @@ def _shapley(coalitions, results, bank: SetBank, reference: Reference) -> dict |
         return None
     by_name = {r.name: r for r in results}
     players = sorted({n for label in coalitions for n in label.split(":", 1)[1].split("+")})
-    on = kernel_rungs(reference.gaps, reference.rungs)
+    on = reference.kernel_rungs
     value = {frozenset(): 0.0}
     value.update({frozenset([n]): by_name[n].best_score for n in players})
     kernel = {}
@@ -1034,7 +1033,7 @@ def _joint_fit(
         floor=floor,
         rounds=budget.joint_rounds,
     )
-    return dataclasses.replace(fit, kernel_gap=bool(kernel_rungs(reference.gaps, reference.rungs)))
+    return dataclasses.replace(fit, kernel_gap=bool(reference.kernel_rungs))
 
 
 def _score_plan(plan: list[tuple], bank: SetBank, reference: Reference) -> list:

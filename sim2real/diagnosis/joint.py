@@ -34,7 +34,7 @@ import numpy as np
 from ..ladder import LadderFeatures
 from ..stats import CI_LEVEL, bootstrap_draws
 from .coalitions import shapley_values
-from .ranking import OPEN_SET_MARGIN, OPEN_SET_MIN_CLOSURE, kernel_rungs
+from .ranking import OPEN_SET_MARGIN, OPEN_SET_MIN_CLOSURE
 from .reference import Reference
 from .scoring import CONFUSABLE_WITHIN, oof_divergence
 
@@ -204,7 +204,7 @@ def _set_scores(sets: Sequence[LadderFeatures], reference: Reference):
     scored = reference.score("joint", "joint", (None,) * (len(sets) + 1), [sim, *sets])
     nominal = {rung: oof[0] for rung, oof in scored.scores_oof.items()}
     own = [{rung: oof[i + 1] for rung, oof in scored.scores_oof.items()} for i in range(len(sets))]
-    on = kernel_rungs(reference.gaps, reference.rungs)
+    on = reference.kernel_rungs
     kernel = [
         float(np.mean([scored.closure[r][i + 1] for r in on])) if on else None
         for i in range(len(sets))

@@ -7,6 +7,7 @@ import dataclasses
 from ..ladder import LadderFeatures
 from ..stats import Gap
 from .localise import localise, rung_gaps
+from .ranking import kernel_rungs
 from .scoring import CandidateResult, ReferenceScores, candidate_result, score_reference
 
 __all__ = ["Reference", "compare_domains"]
@@ -32,6 +33,11 @@ class Reference:
     """The scored rungs."""
     before: ReferenceScores
     """S's domain classifier against R on the scored rungs."""
+
+    @property
+    def kernel_rungs(self) -> list[str]:
+        """The scored rungs whose S vs R MMD² lies above its floor (:func:`kernel_rungs`)."""
+        return kernel_rungs(self.gaps, self.rungs)
 
     def score(
         self,
