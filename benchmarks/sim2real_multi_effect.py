@@ -142,6 +142,10 @@ def figures(rows: list[dict], loop: dict | None) -> dict:
             "median": summary["stage_share_error_pts_median"],
             "max": summary["stage_share_error_pts_max"],
         },
+        "factor_strength_in_interval": {
+            "share": summary.get("factor_strength_in_interval"),
+            "n": summary.get("factor_strength_in_interval_n", 0),
+        },
         "twin_false_attribution": summary["twin_false_attribution"],
         "quick_minutes": {
             "first": minutes[0] if minutes else None,

@@ -12,6 +12,8 @@ the factors that matter, each with its share of the gap. Scored against the answ
   from the sealed ones (the seal's image effects are second implementations on their own
   scales), are built and attributed exactly as the diagnosis attributes its own fit (reset
   and exact Shapley values, :func:`truth_attribution`);
+* how strong: whether each named true factor's strength lies in the joint fit's strength
+  interval (:func:`strengths_in_intervals`);
 * an effect-free twin counts as a false attribution when any factor or effect is named.
 
 Every sealed set's fabrics differ in areal density (the answer's ``density_range``), which a
@@ -31,6 +33,7 @@ import numpy as np
 from ..diagnosis.joint import MATTERS, Factor, assignment, attribute, calibrate
 from ..reopen import reopen
 from ..result import Diagnosis
+from .image_twins import TWIN_EFFECTS
 
 __all__ = [
     "FABRIC_SPREAD",
@@ -38,6 +41,7 @@ __all__ = [
     "named_factors",
     "predicted_stage_shares",
     "score_multi",
+    "strengths_in_intervals",
     "truth_attribution",
 ]
 
@@ -150,6 +154,37 @@ def _f1(named: set[str], truth: set[str]) -> tuple[float, float, float]:
     return precision, recall, f1
 
 
+def strengths_in_intervals(result: Diagnosis, answer: dict, truth: dict | None) -> tuple[int, int]:
+    """How many named true factors have a strength interval, and how many hold the truth.
+
+    The truth is the sealed strength, except for an image effect the seal applied through its
+    second implementation (:data:`~sim2real.study.image_twins.TWIN_EFFECTS`, on its own
+    scale), whose truth is the library strength that reproduces it best (the truth
+    attribution's refit; not checked without one).
+    """
+    if result.joint is None:
+        return 0, 0
+    twinned = answer.get("image_effects") == "twins"
+    refit = (truth or {}).get("strengths", {})
+    checked = inside = 0
+    for effect in answer_effects(answer):
+        name = effect["name"]
+        if not effect["library"] or name not in result.joint.named:
+            continue
+        if name not in result.joint.strength_interval:
+            continue
+        if twinned and name.removeprefix("visual.") in TWIN_EFFECTS:
+            true = refit.get(name)
+        else:
+            true = effect["strength"]
+        if not isinstance(true, int | float) or isinstance(true, bool):
+            continue
+        low, high = result.joint.strength_interval[name]
+        checked += 1
+        inside += int(low <= float(true) <= high)
+    return checked, inside
+
+
 def score_multi(result: Diagnosis, answer: dict, truth: dict | None) -> dict:
     """The factor and share scores of a ``multi`` or ``twin`` set (``truth``: its attribution)."""
     named = named_factors(result)
@@ -161,6 +196,9 @@ def score_multi(result: Diagnosis, answer: dict, truth: dict | None) -> dict:
         return row
     row["factor_precision"], row["factor_recall"], row["factor_f1"] = _f1(named, withheld)
     row["joint_closure"] = None if result.joint is None else result.joint.closure
+    row["strengths_checked"], row["strengths_in_interval"] = strengths_in_intervals(
+        result, answer, truth
+    )
     if truth is None:
         return row
     row["truth_closure"] = truth["closure"]

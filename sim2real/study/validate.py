@@ -207,6 +207,10 @@ def summarise(rows: list[dict]) -> dict:
     out["twin_named_fabric_spread"], _ = rate("named_fabric_spread", ("twin",))
     for key in ("factor_f1", "factor_f1_matter", "factor_precision", "factor_recall"):
         out[key], out[f"{key}_n"] = rate(key, ("multi",))
+    checked = sum(r.get("strengths_checked", 0) for r in rows if r["kind"] == "multi")
+    inside = sum(r.get("strengths_in_interval", 0) for r in rows if r["kind"] == "multi")
+    out["factor_strength_in_interval"] = inside / checked if checked else None
+    out["factor_strength_in_interval_n"] = checked
     errors = [
         r["stage_share_error_pts"] for r in rows if r.get("stage_share_error_pts") is not None
     ]
@@ -355,6 +359,9 @@ def _multi_rows(summary: dict, pct) -> list[str]:
         f"{number(summary['stage_share_error_pts_median'])} | {summary['factor_f1_matter_n']} |",
         f"| stage share error, worst (points) | <= 15 | "
         f"{number(summary['stage_share_error_pts_max'])} | {summary['factor_f1_matter_n']} |",
+        f"| named true factors: strength inside its interval | – | "
+        f"{pct(summary.get('factor_strength_in_interval'))} | "
+        f"{summary.get('factor_strength_in_interval_n', 0)} |",
         f"| effect-free twins: false attribution | <= 5 % | "
         f"{pct(summary['twin_false_attribution'])} | {summary['twin_n']} |",
         f"| effect-free twins naming their fabrics' density spread | – | "

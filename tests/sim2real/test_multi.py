@@ -117,6 +117,31 @@ def test_factor_scores_and_stage_shares_against_the_truth():
     assert summary["stage_share_error_pts_max"] == 30.0
 
 
+def test_a_named_true_factor_is_checked_against_its_strength_interval():
+    shapley = {"physics.air_damping": 0.5, "visual.sensor_noise": 0.3, "visual.specular": 0.1}
+    joint = dataclasses.replace(
+        _joint(shapley, STAGES),
+        strength_interval={"physics.air_damping": (0.5, 2.0), "visual.sensor_noise": (3.0, 4.0)},
+    )
+    answer = {
+        **_multi_answer("physics.air_damping", "visual.sensor_noise"),
+        "image_effects": "twins",
+    }
+    answer["effects"][1]["strength"] = 9.0  # on the second implementation's own scale
+    refit = {"closure": 0.8, "matter": [], "stage_shares": {}, "strengths": {}}
+    # the damping's sealed 1.0 is inside; the noise has no refit to compare with
+    row = score_set(_diagnosis(joint), answer, refit)
+    assert (row["strengths_checked"], row["strengths_in_interval"]) == (1, 1)
+    refit["strengths"] = {"visual.sensor_noise": 4.5}  # the library strength that matches best
+    row = score_set(_diagnosis(joint), answer, refit)
+    assert (row["strengths_checked"], row["strengths_in_interval"]) == (2, 1)
+    rendered = {**answer, "image_effects": "library"}  # the sealed 9.0 is on the library's scale
+    assert score_set(_diagnosis(joint), rendered, refit)["strengths_in_interval"] == 1
+    summary = summarise([row, {**row, "seed": 8, "strengths_in_interval": 2}])
+    assert summary["factor_strength_in_interval"] == pytest.approx(3 / 4)
+    assert summary["factor_strength_in_interval_n"] == 4
+
+
 def test_without_a_joint_fit_the_named_effect_counts_and_twins_score_false_attribution():
     named = _diagnosis(None, explained=True)
     assert named_factors(named) == {"visual.sensor_noise"}
