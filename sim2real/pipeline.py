@@ -14,7 +14,6 @@ import functools
 import hashlib
 import itertools
 import logging
-import math
 import time
 from pathlib import Path
 
@@ -48,6 +47,7 @@ from .diagnosis.joint import (
     closure_values,
     divergence_closure,
     fit_jointly,
+    midpoint,
     nominal_scores,
     point_closures,
 )
@@ -1112,9 +1112,12 @@ def _refine(plan: list[tuple], results: list, mode: str) -> list[tuple]:
     def midpoints(candidate, values, result):
         for j in (result.best - 1, result.best + 1):
             if len(values) >= 2 and 0 <= j < len(values):
-                a, b = values[result.best], values[j]
-                mid = math.sqrt(a * b) if candidate.log_scale else 0.5 * (a + b)
-                yield round(mid) if candidate.integer else float(f"{mid:.6g}")
+                yield midpoint(
+                    values[result.best],
+                    values[j],
+                    log_scale=bool(candidate.log_scale),
+                    integer=bool(candidate.integer),
+                )
 
     return _grow_top(plan, results, mode, midpoints)
 

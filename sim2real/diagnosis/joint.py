@@ -53,6 +53,7 @@ __all__ = [
     "closure_values",
     "divergence_closure",
     "fit_jointly",
+    "midpoint",
     "nominal_scores",
     "point_closures",
     "rung_closures",
@@ -657,6 +658,12 @@ def attribute(
     intervals = {n: _interval(draws[:, i]) for i, n in enumerate(players)}  # players' order
     full = by_coalition[frozenset(players)]
     return reset, reset_interval, point, intervals, assignment(kept), full
+
+
+def midpoint(a: float, b: float, *, log_scale: bool = False, integer: bool = False) -> float:
+    """The strength halfway between ``a`` and ``b``: geometric on a log scale, else arithmetic."""
+    mid = math.sqrt(a * b) if log_scale and a > 0 and b > 0 else 0.5 * (a + b)
+    return round(mid) if integer else float(f"{mid:.6g}")
 
 
 def strength_intervals(
