@@ -126,6 +126,10 @@ class Budget:
     """Rounds of the joint coordinate ascent (it stops early when a round moves nothing)."""
     joint_strengths: int = 4
     """Strengths each factor tries in the joint fit (spread over those it was scored at)."""
+    joint_interval_refine: int = 2
+    """Bisections of each end of a calibrated strength's interval (:func:`strength_intervals
+    <sim2real.diagnosis.joint.strength_intervals>`); 0 = the ascent's grid only. Costs up to
+    two sets a numeric factor per bisection."""
 
     def __post_init__(self):
         if self.refine not in ("none", "visual", "all"):
@@ -146,6 +150,7 @@ class Budget:
         check_int("budget.joint_verify", self.joint_verify)
         check_int("budget.joint_rounds", self.joint_rounds)
         check_int("budget.joint_strengths", self.joint_strengths)
+        check_int("budget.joint_interval_refine", self.joint_interval_refine, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
 
@@ -991,6 +996,8 @@ def _joint_pool(
                 options,
                 setting=setting,
                 simulated=candidate.needs_simulation,
+                log_scale=bool(candidate.log_scale),
+                integer=bool(candidate.integer),
             )
         )
     return pool
@@ -1032,6 +1039,7 @@ def _joint_fit(
         verify=budget.joint_verify,
         floor=floor,
         rounds=budget.joint_rounds,
+        interval_refine=budget.joint_interval_refine,
     )
     return dataclasses.replace(fit, kernel_gap=bool(reference.kernel_rungs))
 

@@ -128,6 +128,10 @@ class Factor:
     """True when the factor re-simulates the cloth (physics, scene): its set's trajectories
     differ from S's like a fresh draw's, so it must close more than S' does; a re-rendering
     factor sees S's own meshes and needs no such floor."""
+    log_scale: bool = False
+    """Strengths between two tried ones are geometric midpoints (else arithmetic)."""
+    integer: bool = False
+    """Strengths are whole numbers (a midpoint is rounded)."""
 
     def __post_init__(self):
         if not self.options:
@@ -667,29 +671,65 @@ def midpoint(a: float, b: float, *, log_scale: bool = False, integer: bool = Fal
 
 
 def strength_intervals(
-    factors: Sequence[Factor], calibrated: Assignment, value: Value, evaluate: Evaluate
+    factors: Sequence[Factor],
+    calibrated: Assignment,
+    value: Value,
+    evaluate: Evaluate,
+    *,
+    refine: int = 0,
 ) -> dict[str, tuple[float, float]]:
     """Each numeric factor's strengths that S* cannot tell apart from the calibrated one.
 
     Every tried strength of the factor, the others held at S*, whose closure falls short of
-    S*'s by a group-bootstrap interval that includes 0; the range of those strengths (at the
-    resolution of the grid tried). Switches and choices get none.
+    S*'s by a group-bootstrap interval that includes 0; the range of those strengths. The
+    ascent's grid is coarse, so each end is then bisected ``refine`` times against the
+    nearest tried strength beyond it that S* is told from (:func:`midpoint`; every factor's
+    probes of one round are one batch): the true edge lies between the two. Switches and
+    choices get none.
     """
     strengths = dict(calibrated)
-    out = {}
-    for factor in factors:
-        current = strengths.get(factor.name, NOMINAL)
-        numeric = [o for o in factor.options if isinstance(o, int | float)]
-        if not isinstance(current, int | float) or len(numeric) < 2:
-            continue
-        values = evaluate([assignment({**strengths, factor.name: o}) for o in numeric])
-        close = [
-            o
-            for o, v in zip(numeric, values, strict=True)
-            if _interval(value.replicates - v.replicates)[0] <= 0 or o == current
-        ]
-        out[factor.name] = (float(min(close)), float(max(close)))
-    return out
+    numeric = {
+        f.name: sorted(
+            {o for o in f.options if isinstance(o, int | float) and not isinstance(o, bool)}
+        )
+        for f in factors
+    }
+    numeric = {
+        n: grid
+        for n, grid in numeric.items()
+        if isinstance(strengths.get(n, NOMINAL), int | float) and len(grid) >= 2
+    }
+    by_name = {f.name: f for f in factors}
+
+    def held(batch: list[tuple[str, float]]) -> list[bool]:
+        values = evaluate([assignment({**strengths, n: s}) for n, s in batch])
+        return [_interval(value.replicates - v.replicates)[0] <= 0 for v in values]
+
+    grid = [(n, o) for n, options in numeric.items() for o in options]
+    accepted = {(n, o) for (n, o), ok in zip(grid, held(grid), strict=True) if ok}
+    # per factor: [low held, high held, told apart below (or None), told apart above]
+    ends = {}
+    for name, options in numeric.items():
+        inside = [o for o in options if (name, o) in accepted] + [strengths[name]]
+        low, high = min(inside), max(inside)
+        below = [o for o in options if o < low]
+        above = [o for o in options if o > high]
+        ends[name] = [low, high, below[-1] if below else None, above[0] if above else None]
+    for _ in range(refine):
+        probes = []
+        for name, (low, high, below, above) in ends.items():
+            f = by_name[name]
+            for side, inner, outer in ((0, low, below), (1, high, above)):
+                if outer is None:
+                    continue
+                mid = midpoint(inner, outer, log_scale=f.log_scale, integer=f.integer)
+                if mid != inner and mid != outer:
+                    probes.append((name, side, mid))
+        if not probes:
+            break
+        for (name, side, mid), ok in zip(probes, held([(n, m) for n, _, m in probes]), strict=True):
+            ends[name][side if ok else side + 2] = mid
+    return {n: (float(e[0]), float(e[1])) for n, e in ends.items()}
 
 
 def fit_jointly(
@@ -703,6 +743,7 @@ def fit_jointly(
     rounds: int = 2,
     tolerance: float = JOINT_TOLERANCE,
     matters: float = MATTERS,
+    interval_refine: int = 0,
 ) -> JointFit:
     """:func:`select` (with ``screen``), :func:`calibrate`, then :func:`attribute` at S*.
 
@@ -733,7 +774,7 @@ def fit_jointly(
     reset, reset_interval, shapley, shapley_interval, kept, full = attribute(
         calibrated, value, cached, matters=matters
     )
-    intervals = strength_intervals(factors, kept, full, cached)
+    intervals = strength_intervals(factors, kept, full, cached, refine=interval_refine)
     return JointFit(
         factors={f.name: f.stage for f in factors},
         strengths=dict(kept),

@@ -24,8 +24,10 @@ from sim2real.diagnosis.joint import (
     calibrate,
     closure_values,
     fit_jointly,
+    midpoint,
     point_closures,
     select,
+    strength_intervals,
 )
 from sim2real.diagnosis.reference import compare_domains
 from sim2real.ladder import LadderFeatures
@@ -405,3 +407,53 @@ def test_a_tie_is_broken_by_the_kernel_distance_when_it_tells_the_two_apart():
     kernel_of.update(a=0.35, b=0.3)
     found, _, _, path = select(pool, evaluate, screen, top=2, verify=2)
     assert found == [] and sorted(path[0]["tied"]) == ["a", "b"]
+
+
+def test_midpoints_are_geometric_on_a_log_scale_and_whole_for_integers():
+    assert midpoint(1.0, 4.0) == 2.5
+    assert midpoint(1.0, 4.0, log_scale=True) == 2.0
+    assert midpoint(10, 15, integer=True) == 12  # round half to even
+    assert midpoint(0.0, 4.0, log_scale=True) == 2.0  # no geometric mean through 0
+
+
+def test_interval_ends_are_bisected_towards_the_strengths_s_star_is_told_from():
+    """Closure 0.9 - 4 (s - 0.32)²; S* is told from s when it closes 0.04 more: |s - 0.32| > 0.1."""
+    lin = np.linspace(-1.0, 1.0, 201)
+    half_width = 0.04 / 1.9  # the 2.5 % quantile of 2 w lin is -1.9 w
+    calibrated = (("x", 0.32),)
+    probed = []
+
+    def evaluate(batch):
+        out = []
+        for a in batch:
+            s = dict(a)["x"]
+            probed.append(s)
+            c = 0.9 - 4.0 * (s - 0.32) ** 2
+            sign = 1.0 if a == calibrated else -1.0
+            out.append(Value(c, c + sign * half_width * lin))
+        return out
+
+    factor = Factor("x", "physics", (0.1, 0.25, 0.32, 0.8))
+    (value,) = evaluate([calibrated])
+    assert strength_intervals([factor], calibrated, value, evaluate) == {"x": (0.25, 0.32)}
+    probed.clear()
+    rounds = 6
+    low, high = strength_intervals([factor], calibrated, value, evaluate, refine=rounds)["x"]
+    assert 0.22 - 1e-9 <= low <= 0.22 + 0.15 / 2**rounds  # between 0.25 and 0.1, told at 0.22
+    assert 0.42 - 0.48 / 2**rounds <= high <= 0.42 + 1e-9  # between 0.32 and 0.8, told at 0.42
+    assert len(probed) == 4 + 2 * rounds  # the grid once, then two probes a round
+
+
+def test_refined_intervals_hold_the_planted_strength(scene):
+    _, evaluate, _ = scene
+    fit = fit_jointly(FACTORS, evaluate, rounds=3, interval_refine=2)
+    coarse = fit_jointly(FACTORS, evaluate, rounds=3)
+    for name in ("shift", "spread"):
+        low, high = fit.strength_interval[name]
+        assert low <= PLANTED[name] <= high
+        grid = sorted(next(f for f in FACTORS if f.name == name).options)
+        c_low, c_high = coarse.strength_interval[name]
+        below = max([o for o in grid if o < c_low], default=c_low)
+        above = min([o for o in grid if o > c_high], default=c_high)
+        assert low <= c_low and c_high <= high  # the grid's interval, widened
+        assert (below < low or low == c_low) and (high < above or high == c_high)

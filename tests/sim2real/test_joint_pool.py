@@ -10,7 +10,13 @@ from sim2real import pipeline
 def _candidate(name: str, stage: str) -> SimpleNamespace:
     registry, field = name.split(".")
     return SimpleNamespace(
-        name=name, stage=stage, registry=registry, field=field, needs_simulation=stage != "camera"
+        name=name,
+        stage=stage,
+        registry=registry,
+        field=field,
+        needs_simulation=stage != "camera",
+        log_scale=stage == "camera",
+        integer=False,
     )
 
 
@@ -41,4 +47,5 @@ def test_a_candidate_the_data_cannot_tell_from_its_neutral_strength_is_not_a_fac
     size, blur = pool
     assert size.options == (0.3, 0.4, 0.8)  # the two ends and the best alone (0.4)
     assert size.simulated and not blur.simulated
+    assert blur.log_scale and not size.log_scale  # the ends of its interval bisect like its grid
     assert size.setting == "scene.size"
