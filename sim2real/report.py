@@ -492,8 +492,16 @@ def _selection_lines(path: list[dict]) -> list[str]:
         tied = f"tied: {', '.join(step['tied'])}" if step.get("tied") else ""
         if step["added"]:
             added = step["added"] + (f" ({tied} before it)" if tied else "")
+            apart = step.get("kernel_apart", {}).get(step["added"])
+            if apart:
+                added += f"; told from {', '.join(apart)} by the kernel distance"
         else:
             added = f"none ({tied or 'stop'})"
+        if step.get("kernel_beaten"):
+            added += (
+                f"; passed over: {', '.join(step['kernel_beaten'])} (a tied rival removes "
+                "more of the kernel distance)"
+            )
         rows.append([str(step["step"]), added, tried])
     if not rows:
         return []
@@ -501,8 +509,9 @@ def _selection_lines(path: list[dict]) -> list[str]:
         "How the factors were chosen: at each step every candidate was screened on top of the "
         "factors already chosen, and these were built and measured (closure with the "
         "addition); the best was added when it closed at least 5 % more and could be told "
-        "from every addition it did not clearly beat (it still adds on top of it); additions "
-        "that could not be told apart are listed as tied.",
+        "from every addition it did not clearly beat (it still adds on top of it) or removed "
+        "at least 0.1 more of the kernel distance (MMD²) than it; additions that could not be "
+        "told apart are listed as tied.",
         "",
         markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",

@@ -63,4 +63,10 @@ def test_the_report_says_how_the_factors_were_chosen():
     chose = {**tied, "added": "c", "tied": ["a", "b"], "measured": {"c": 0.3}}
     table = next(s for s in _selection_lines([chose]) if "| step" in s)
     assert str(table).splitlines()[2] == "| 2 | c (tied: a, b before it) | c 30 % |"
+    kernel = {**tied, "added": "a", "kernel_apart": {"a": ["b"]}, "kernel_beaten": ["d"]}
+    table = next(s for s in _selection_lines([kernel]) if "| step" in s)
+    assert str(table).splitlines()[2] == (
+        "| 2 | a; told from b by the kernel distance; passed over: d (a tied rival removes more "
+        "of the kernel distance) | a 50 %, b 50 % |"
+    )
     assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show
