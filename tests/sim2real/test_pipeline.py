@@ -541,6 +541,7 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
         "scored_rungs": ["pixel"],
         "residual_stage": "",
         "inputs": {"budget": "quick"},
+        "timing": {"total": 600.0},
     }
     _merged(out, report, world["answer"])
     args = [
@@ -562,6 +563,7 @@ def test_finished_only_scores_the_finished_sets_and_seals_nothing(world, tmp_pat
     rows = json.loads((out / "validation.json").read_text())["sets"]
     assert [r["seed"] for r in rows] == [1] and rows[0]["top1"] and rows[0]["stage_correct"]
     assert rows[0]["strength_in_interval"]
+    assert rows[0]["minutes"] == 10.0  # the diagnosis's own time, not the time to reload it
     assert not (out / "sets").exists()  # set 2 was neither sealed nor diagnosed
     assert (out / "validation.md").is_file() and (out / "confusion.png").is_file()
     assert (out / "validation.md").read_text().startswith("Diagnosed at budget quick")
