@@ -487,7 +487,7 @@ class JointFit:
     """The calibrated strengths of the factors that matter (the others are nominal; a
     switch's is ``None``, on)."""
     strength_interval: dict[str, tuple[float, float]]
-    """Numeric factor -> the range of its tried strengths that S* cannot tell from the
+    """Numeric factor -> its interval: the strengths outside it were told apart from the
     calibrated one (:func:`strength_intervals`)."""
     closure: float
     """Share of the gap S* closes."""
@@ -678,14 +678,15 @@ def strength_intervals(
     *,
     refine: int = 0,
 ) -> dict[str, tuple[float, float]]:
-    """Each numeric factor's strengths that S* cannot tell apart from the calibrated one.
+    """Each numeric factor's interval: the strengths S* is not shown to be told apart from.
 
-    Every tried strength of the factor, the others held at S*, whose closure falls short of
-    S*'s by a group-bootstrap interval that includes 0; the range of those strengths. The
-    ascent's grid is coarse, so each end is then bisected ``refine`` times against the
-    nearest tried strength beyond it that S* is told from (:func:`midpoint`; every factor's
-    probes of one round are one batch): the true edge lies between the two. Switches and
-    choices get none.
+    A strength is told apart when S* (the others held) beats it by a group-bootstrap interval
+    above 0. Among the tried strengths, those not told apart span ``[low, high]`` (with the
+    calibrated one); the nearest told apart beyond each end bound the interval, so every
+    strength outside it was told apart, while one inside may not have been tried (the
+    ascent's grid is coarse). Each bound is then bisected ``refine`` times against its end
+    (:func:`midpoint`; every factor's probes of one round are one batch). An end with no
+    strength told apart beyond it is the last one tried. Switches and choices get none.
     """
     strengths = dict(calibrated)
     numeric = {
@@ -729,7 +730,10 @@ def strength_intervals(
             break
         for (name, side, mid), ok in zip(probes, held([(n, m) for n, _, m in probes]), strict=True):
             ends[name][side if ok else side + 2] = mid
-    return {n: (float(e[0]), float(e[1])) for n, e in ends.items()}
+    return {
+        n: (float(low if below is None else below), float(high if above is None else above))
+        for n, (low, high, below, above) in ends.items()
+    }
 
 
 def fit_jointly(

@@ -435,13 +435,16 @@ def test_interval_ends_are_bisected_towards_the_strengths_s_star_is_told_from():
 
     factor = Factor("x", "physics", (0.1, 0.25, 0.32, 0.8))
     (value,) = evaluate([calibrated])
-    assert strength_intervals([factor], calibrated, value, evaluate) == {"x": (0.25, 0.32)}
+    # 0.25 and 0.32 are not told apart, 0.1 and 0.8 are: the interval reaches to those
+    assert strength_intervals([factor], calibrated, value, evaluate) == {"x": (0.1, 0.8)}
     probed.clear()
     rounds = 6
     low, high = strength_intervals([factor], calibrated, value, evaluate, refine=rounds)["x"]
-    assert 0.22 - 1e-9 <= low <= 0.22 + 0.15 / 2**rounds  # between 0.25 and 0.1, told at 0.22
-    assert 0.42 - 0.48 / 2**rounds <= high <= 0.42 + 1e-9  # between 0.32 and 0.8, told at 0.42
+    assert 0.22 - 0.15 / 2**rounds <= low <= 0.22 + 1e-9  # told apart below 0.22
+    assert 0.42 - 1e-9 <= high <= 0.42 + 0.48 / 2**rounds  # and above 0.42
     assert len(probed) == 4 + 2 * rounds  # the grid once, then two probes a round
+    edge = Factor("x", "physics", (0.25, 0.32, 0.8))  # nothing tried below is told apart
+    assert strength_intervals([edge], calibrated, value, evaluate)["x"] == (0.25, 0.8)
 
 
 def test_refined_intervals_hold_the_planted_strength(scene):
@@ -453,7 +456,6 @@ def test_refined_intervals_hold_the_planted_strength(scene):
         assert low <= PLANTED[name] <= high
         grid = sorted(next(f for f in FACTORS if f.name == name).options)
         c_low, c_high = coarse.strength_interval[name]
-        below = max([o for o in grid if o < c_low], default=c_low)
-        above = min([o for o in grid if o > c_high], default=c_high)
-        assert low <= c_low and c_high <= high  # the grid's interval, widened
-        assert (below < low or low == c_low) and (high < above or high == c_high)
+        assert c_low <= low and high <= c_high  # bisected inwards from the grid's bounds
+        assert min(grid) <= c_low and c_high <= max(grid)
+    assert fit.strength_interval != coarse.strength_interval  # the bisection narrowed one
