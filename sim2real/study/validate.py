@@ -105,7 +105,7 @@ def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) 
         "kind": answer["kind"],
         "truth": [f"{e['name']}={e['strength']}" for e in answer["effects"]],
         "predicted": ranking.top if ranking.explained else "unexplained",
-        "stage_correct": bool(_predicted_stages(result) & stages),
+        "stage_correct": bool(_predicted_stages(result) & stages) if stages else None,
     }
     row["detected"] = bool(result.scored_rungs)
     row["budget"] = result.inputs.budget
@@ -332,9 +332,13 @@ def _table(summary: dict, rows: list[dict]) -> str:
     ]
     for r in rows:
         closed = r.get("gap_closed")
+        diagnosed = r["predicted"]
+        if "named" in r:  # a multi-effect set or a twin: the joint fit's factors
+            diagnosed = ", ".join(r["named"]) or "nothing named"
+        stage = r["stage_correct"]
         lines.append(
-            f"| {r['seed']} | {r['kind']} | {', '.join(r['truth'])} | {r['predicted']} | "
-            f"{'yes' if r['stage_correct'] else 'no'} | "
+            f"| {r['seed']} | {r['kind']} | {', '.join(r['truth'])} | {diagnosed} | "
+            f"{'–' if stage is None else 'yes' if stage else 'no'} | "
             f"{'–' if 'top3' not in r else ('yes' if r['top3'] else 'no')} | "
             f"{'–' if closed is None else f'{100 * closed:.0f} %'} |"
         )

@@ -8,7 +8,7 @@ from sim2real.candidates import candidate_library
 from sim2real.diagnosis.joint import JointFit
 from sim2real.study.multi import named_factors, predicted_stage_shares, score_multi
 from sim2real.study.seal import MULTI_EFFECTS, _base_spec, draw_answer
-from sim2real.study.validate import score_set, summarise
+from sim2real.study.validate import _table, score_set, summarise
 from tests.sim2real.reports import as_diagnosis
 
 LIBRARY = candidate_library(_base_spec(None, 1))
@@ -148,7 +148,11 @@ def test_without_a_joint_fit_the_named_effect_counts_and_twins_score_false_attri
     assert predicted_stage_shares(named) == {"camera": 0.3}
     assert named_factors(_diagnosis(None)) == set()
     twin = {"seed": 9, "kind": "twin", "effects": []}
-    assert score_set(_diagnosis(None), twin)["false_attribution"] is False
+    clean = score_set(_diagnosis(None), twin)
+    assert clean["false_attribution"] is False
+    assert clean["stage_correct"] is None  # nothing withheld: no stage to get right
+    table = _table(summarise([clean]), [clean])
+    assert "| 9 | twin |  | nothing named | – | – | – |" in table
     assert score_set(named, twin)["false_attribution"] is True
     flagged = score_multi(_diagnosis(_joint({"scene.size": 0.7}, STAGES)), twin, None)
     assert flagged["false_attribution"] is True
