@@ -33,6 +33,7 @@ __all__ = [
     "clip_features",
     "hand_rung",
     "hand_rung_names",
+    "image_proof_rungs",
     "rungs_revealing",
 ]
 
@@ -52,6 +53,10 @@ class Rung:
     """Names of its features, in the order ``measure`` returns them."""
     measure: Callable[[np.ndarray, tuple[int, int, int, int]], np.ndarray]
     """``measure(clip uint8 (K, H, W, 3), box (y0, y1, x0, x1)) -> float64 (features,)``."""
+    image_proof: bool = False
+    """A ``dynamics`` rung that no change of how the picture is formed moves (texture,
+    backdrop, sharpening: ``benchmarks/sim2real_rung_invariance.py``), so a gap on it is the
+    cloth's motion; ``motion``'s dense flow is not."""
 
     def __post_init__(self):
         if self.reveals not in KINDS:
@@ -61,7 +66,7 @@ class Rung:
 HAND_RUNGS: tuple[Rung, ...] = (
     Rung("pixel", "image", PIXEL_FEATURE_NAMES, pixel_features),
     Rung("motion", "dynamics", MOTION_FEATURE_NAMES, motion_features),
-    Rung("tracks", "dynamics", TRACK_FEATURE_NAMES, track_features),
+    Rung("tracks", "dynamics", TRACK_FEATURE_NAMES, track_features, image_proof=True),
 )
 """The hand-made rungs, in ladder order. ``tracks`` reads only followed points of the cloth,
 so a texture, backdrop or sharpening change that moves ``motion``'s dense flow leaves it
@@ -86,6 +91,11 @@ def rungs_revealing(kind: str) -> tuple[str, ...]:
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     return tuple(rung.name for rung in HAND_RUNGS if rung.reveals == kind)
+
+
+def image_proof_rungs() -> tuple[str, ...]:
+    """Names of the ``dynamics`` rungs that image changes cannot move (:attr:`Rung.image_proof`)."""
+    return tuple(rung.name for rung in HAND_RUNGS if rung.image_proof)
 
 
 def _boxes_for(box, count_hint: int | None):

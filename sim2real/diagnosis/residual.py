@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..rungs import rungs_revealing
+from ..rungs import image_proof_rungs, rungs_revealing
 
 __all__ = ["RESIDUAL_MOTION_SHARE", "RESIDUAL_STAGE_MIN_CLOSURE", "stage_of_residual"]
 
@@ -60,14 +60,27 @@ def stage_of_residual(
     the pixel statistics decide as before): a motion gap of :data:`RESIDUAL_MOTION_SHARE` of
     the pixel gap or more says the cloth moves differently ("physics or scene"), a smaller one
     that the image is formed differently (see the constant for how far that holds).
+
+    Texture, backdrop and sharpening move the dense flow with the picture. Where an image-proof
+    rung (:func:`~sim2real.rungs.image_proof_rungs`: tracked points of the cloth) was measured
+    (in ``gaps``), a dense-flow gap that comes with a pixel gap counts as motion only when the
+    image-proof rung differs too, and the motion's share above is that rung's gap.
     """
     if not location["significant"] and location["first_significant_layer"] is None:
         return "none (no significant gap)"
     significant = location["significant"]
     moves = any(n in significant for n in rungs_revealing("dynamics"))
-    if any(n in significant for n in rungs_revealing("image")):
-        by_pattern = "appearance or camera"
-        pattern = "the pixel statistics differ" + ("" if moves else ", the motion does not")
+    looks = any(n in significant for n in rungs_revealing("image"))
+    proof = tuple(n for n in image_proof_rungs() if gaps and gaps.get(n) is not None)
+    flow_only = proof and looks and moves and not any(n in significant for n in proof)
+    if flow_only:
+        moves = False  # the dense flow moved with the picture; the cloth's points did not
+    if looks:
+        by_pattern, pattern = "appearance or camera", "the pixel statistics differ"
+        if flow_only:
+            pattern += ", and the dense flow, not the tracked points"
+        elif not moves:
+            pattern += ", the motion does not"
     elif moves:
         by_pattern, pattern = "physics or scene", "the motion differs, the pixel statistics do not"
     else:
@@ -83,7 +96,8 @@ def stage_of_residual(
             f"{_STAGE_PAIR[best]} (the {best} candidates close most of it, "
             f"{100 * scores[best]:.0f} %, too little to name one; {pattern})"
         )
-    pixel, motion = (_largest(gaps, rungs_revealing(kind)) for kind in ("image", "dynamics"))
+    pixel = _largest(gaps, rungs_revealing("image"))
+    motion = _largest(gaps, proof or rungs_revealing("dynamics"))
     if moves and by_pattern == "appearance or camera" and None not in (pixel, motion):
         if motion >= RESIDUAL_MOTION_SHARE * pixel:
             return (

@@ -261,6 +261,35 @@ def test_a_residual_that_moves_as_much_as_it_looks_different_lies_in_physics_or_
     )
 
 
+def test_a_dense_flow_gap_that_the_tracked_points_do_not_show_is_placed_in_the_image():
+    """Texture and sharpening move the dense flow with the picture, not the cloth's points."""
+    both = {"significant": ["pixel", "motion"], "first_significant_layer": "enc.block1"}
+    quiet = {"scene": 0.02, "physics": 0.03, "appearance": -0.01, "camera": -0.02}
+    # the invariance benchmark's random textures: pixel 0.96, motion 0.81, tracks 0.53 (AUC)
+    texture = {"pixel": 0.46, "motion": 0.31, "tracks": 0.03}
+    text = stage_of_residual(both, quiet, texture)
+    assert text == (
+        "appearance or camera (the pixel statistics differ, and the dense flow, not the "
+        "tracked points)"
+    )
+    assert stage_of_residual(both, quiet, {"pixel": 0.46, "motion": 0.31}).startswith(
+        "physics or scene"  # without the tracked points measured, the flow's share decides
+    )
+    # a scene candidate's partial closure does not count where the cloth's points agree
+    assert stage_of_residual(both, {**quiet, "scene": 0.3}, texture).startswith("appearance")
+    # gusty wind: every dynamics rung differs; the tracked points' share decides
+    gusty = {"significant": ["pixel", "motion", "tracks"], "first_significant_layer": None}
+    wind = {"pixel": 0.48, "motion": 0.47, "tracks": 0.40}
+    assert stage_of_residual(gusty, quiet, wind).startswith("physics or scene (no candidate")
+    faint = {**wind, "tracks": 0.99 * RESIDUAL_MOTION_SHARE * 0.48}
+    assert stage_of_residual(gusty, quiet, faint).startswith("appearance or camera")
+    # without a pixel gap, a dense-flow gap is the cloth's motion, as before
+    flow = {"significant": ["motion"], "first_significant_layer": None}
+    assert stage_of_residual(flow, quiet, {"pixel": 0.0, "motion": 0.3, "tracks": 0.02}).startswith(
+        "physics or scene"
+    )
+
+
 def test_the_planted_effect_is_ranked_first_at_the_right_strength(planted):
     sim, real, gaps = planted
     rungs = scored_rungs(localise(gaps))

@@ -33,6 +33,7 @@ def test_the_registry_names_what_each_rung_reveals():
     assert hand_rung_names() == ("pixel", "motion", "tracks")
     assert rungs_revealing("image") == ("pixel",)
     assert rungs_revealing("dynamics") == ("motion", "tracks")
+    assert rungs.image_proof_rungs() == ("tracks",)  # the dense flow moves with a texture
     with pytest.raises(ValueError, match="reveals must be in"):
         Rung("x", "colour", ("a",), _mean_luma)
 
