@@ -1,6 +1,7 @@
 """Time of one sim-to-real diagnosis at ``budget=quick`` on a 90-video real set at Unif-1.
 
-``python -m benchmarks.diagnose_bench [--videos 90] [--jobs 2] [--run RUN] [--work DIR]``
+``python -m benchmarks.diagnose_bench [--videos 90] [--jobs 2] [--run RUN [--data-dir DATA]]
+[--work DIR]``
 
 1. Builds the training data's spec exactly as ``python -m datasets.generate preset=full
    level=1`` would (only its ``spec.json`` is needed: the diagnosis never reads the shards).
@@ -58,17 +59,26 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--run", help="a trained run (default: random CNN+LSTM weights)")
+    parser.add_argument(
+        "--data-dir", help="the run's training data folder (default: the full level-1 spec)"
+    )
     parser.add_argument("--work", help="work folder (default: a temporary one)")
     args = parser.parse_args()
     use_process_threads(1)
     from datasets.manifest import write_json
-    from sim2real.pipeline import Budget, DiagnosisRequest, run_diagnosis
+    from datasets.runs import dataset_spec
+    from sim2real.pipeline import DiagnosisRequest, run_diagnosis
     from sim2real.study.seal import seal_set
+    from sim2real.study.validate import load_budget
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.work or tmp)
-        spec = _spec(1, "full")
-        write_json(work / "data" / "spec.json", {"key": spec.key(), "spec": spec.to_json()})
+        data = Path(args.data_dir) if args.data_dir else work / "data"
+        if args.data_dir:
+            spec = dataset_spec(data)
+        else:
+            spec = _spec(1, "full")
+            write_json(data / "spec.json", {"key": spec.key(), "spec": spec.to_json()})
         run = Path(args.run) if args.run else _random_run(work)
         start = time.perf_counter()
         real = work / "real"
@@ -78,10 +88,10 @@ def main() -> None:
         request = DiagnosisRequest(
             real_dir=real,
             run=run,
-            data_dir=work / "data",
+            data_dir=data,
             cache_dir=work / "cache",
             mesh_cache=work / "meshes",
-            budget=Budget(),
+            budget=load_budget("quick"),
             candidates="all",
             n_jobs=args.jobs,
         )
