@@ -201,6 +201,13 @@ def score_multi(result: Diagnosis, answer: dict, truth: dict | None) -> dict:
     )
     if truth is None:
         return row
+    row["truth_strengths"] = dict(truth.get("strengths", {}))
+    if result.joint is not None:
+        row["strength_intervals"] = {
+            n: list(result.joint.strength_interval[n])
+            for n in sorted(named)
+            if n in result.joint.strength_interval
+        }
     row["truth_closure"] = truth["closure"]
     row["truth_matter"] = truth["matter"]
     row["factor_f1_matter"] = _f1(named, set(truth["matter"]))[2]

@@ -135,6 +135,8 @@ def test_a_named_true_factor_is_checked_against_its_strength_interval():
     refit["strengths"] = {"visual.sensor_noise": 4.5}  # the library strength that matches best
     row = score_set(_diagnosis(joint), answer, refit)
     assert (row["strengths_checked"], row["strengths_in_interval"]) == (2, 1)
+    assert row["strength_intervals"]["visual.sensor_noise"] == [3.0, 4.0]  # shown beside
+    assert row["truth_strengths"] == {"visual.sensor_noise": 4.5}
     rendered = {**answer, "image_effects": "library"}  # the sealed 9.0 is on the library's scale
     assert score_set(_diagnosis(joint), rendered, refit)["strengths_in_interval"] == 1
     summary = summarise([row, {**row, "seed": 8, "strengths_in_interval": 2}])
