@@ -670,6 +670,10 @@ def midpoint(a: float, b: float, *, log_scale: bool = False, integer: bool = Fal
     return round(mid) if integer else float(f"{mid:.6g}")
 
 
+def _is_number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def strength_intervals(
     factors: Sequence[Factor],
     calibrated: Assignment,
@@ -689,17 +693,11 @@ def strength_intervals(
     strength told apart beyond it is the last one tried. Switches and choices get none.
     """
     strengths = dict(calibrated)
-    numeric = {
-        f.name: sorted(
-            {o for o in f.options if isinstance(o, int | float) and not isinstance(o, bool)}
-        )
-        for f in factors
-    }
-    numeric = {
-        n: grid
-        for n, grid in numeric.items()
-        if isinstance(strengths.get(n, NOMINAL), int | float) and len(grid) >= 2
-    }
+    numeric = {}
+    for f in factors:
+        grid = sorted({o for o in f.options if _is_number(o)})
+        if _is_number(strengths.get(f.name, NOMINAL)) and len(grid) >= 2:
+            numeric[f.name] = grid
     by_name = {f.name: f for f in factors}
 
     def held(batch: list[tuple[str, float]]) -> list[bool]:

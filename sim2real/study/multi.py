@@ -169,9 +169,8 @@ def strengths_in_intervals(result: Diagnosis, answer: dict, truth: dict | None) 
     checked = inside = 0
     for effect in answer_effects(answer):
         name = effect["name"]
-        if not effect["library"] or name not in result.joint.named:
-            continue
-        if name not in result.joint.strength_interval:
+        named = effect["library"] and name in result.joint.named
+        if not named or name not in result.joint.strength_interval:
             continue
         if twinned and name.removeprefix("visual.") in TWIN_EFFECTS:
             true = refit.get(name)
