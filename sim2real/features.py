@@ -26,7 +26,6 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
-from scipy.signal import detrend
 
 __all__ = [
     "MIN_BOX_SIDE",
@@ -462,12 +461,27 @@ def _dense_flow(z: np.ndarray) -> np.ndarray:
     )
 
 
+def _linear_detrend(series: np.ndarray) -> np.ndarray:
+    """Each column of ``series`` (T, N) less its least-squares line in time, float64.
+
+    The closed form of ``scipy.signal.detrend(series, axis=0, type="linear")``: with time
+    centred, the constant and the slope are orthogonal, so each is one projection. It is a
+    few vector products where scipy solves a least-squares problem over every column (about
+    a third of the hand-made rungs' time).
+    """
+    x = np.asarray(series, dtype=np.float64)
+    t = np.arange(len(x), dtype=np.float64)
+    t -= t.mean()
+    slope = (t @ x) / (t @ t) if len(x) > 1 else np.zeros(x.shape[1:])
+    return x - x.mean(axis=0) - np.multiply.outer(t, slope)
+
+
 def _temporal_bands(series: np.ndarray) -> np.ndarray:
     """Relative temporal power of per-pixel series (T, ...) in the temporal bands (sum 1)."""
     length = series.shape[0]
     if length < 2:
         return np.full(len(_TEMPORAL_BAND_EDGES) - 1, 0.25)
-    flat = detrend(series.reshape(length, -1).astype(np.float64), axis=0, type="linear")
+    flat = _linear_detrend(series.reshape(length, -1))
     power = (np.abs(np.fft.rfft(flat, axis=0)) ** 2).mean(axis=1)
     return _relative_bands(power, np.fft.rfftfreq(length), _TEMPORAL_BAND_EDGES)
 

@@ -375,3 +375,20 @@ def test_clip_features_stacks_per_clip_vectors():
     assert empty["pixel"].shape == (0, len(PIXEL_FEATURE_NAMES))
     with pytest.raises(ValueError, match="box"):
         clip_features(clips, boxes[:1])
+
+
+def test_linear_detrend_matches_scipy_reference():
+    """The closed-form detrend (fast path) equals scipy's least-squares one, lines vanish."""
+    from scipy.signal import detrend
+
+    from sim2real.features import _linear_detrend
+
+    rng = np.random.default_rng(3)
+    for length in (2, 3, 9, 10):
+        series = rng.normal(size=(length, 50)) * 10 + rng.normal(size=50)
+        assert np.allclose(
+            _linear_detrend(series), detrend(series, axis=0, type="linear"), atol=1e-10
+        )
+    t = np.arange(10.0)[:, None]
+    line = 3.0 + 0.5 * t * np.arange(4.0)[None]
+    assert np.allclose(_linear_detrend(line), 0.0, atol=1e-12)
