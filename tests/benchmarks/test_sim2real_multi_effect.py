@@ -129,7 +129,8 @@ def test_the_command_writes_json_and_table_and_names_bad_inputs(tmp_path, capsys
 def test_a_cold_diagnosis_on_a_quiet_machine_is_judged_against_the_time_target(tmp_path, capsys):
     bench = tmp_path / "bench.txt"
     bench.write_text(
-        'seal 3 min; diagnose 34 min\n{"diagnose_minutes": 34.0, "candidate_sets": 80}\n'
+        'seal 3 min; diagnose 34 min\n'
+        '{"diagnose_minutes": 34.0, "candidate_sets": 80, "kind": "multi"}\n'
     )
     round_ = tmp_path / "round"
     round_.mkdir()
@@ -142,7 +143,13 @@ def test_a_cold_diagnosis_on_a_quiet_machine_is_judged_against_the_time_target(t
         "measured": 34.0,
         "met": False,
     }
-    assert "a cold diagnosis on a quiet machine" in table(result)
+    assert "a cold diagnosis of a multi-effect set" in table(result)
+    # A single-effect set's cold time is shown, not judged: it lacks the joint fit's sets.
+    bench.write_text('{"diagnose_minutes": 28.0, "kind": "single"}\n')
+    single = main(["--validation", str(round_), "--speed", str(bench), "--out", str(out)])
+    assert single["targets"]["quick_minutes"]["measured"] == 28.0
+    assert single["targets"]["quick_minutes"]["met"] is None
+    assert "target is not judged" in table(single)
     assert figures(ROWS, None)["targets"]["quick_minutes"]["measured"] == 14.0  # the round's
     bench.write_text("diagnose 34 min\n")
     capsys.readouterr()
