@@ -130,6 +130,10 @@ class Budget:
     """Bisections of each end of a calibrated strength's interval (:func:`strength_intervals
     <sim2real.diagnosis.joint.strength_intervals>`); 0 = the ascent's grid only. Costs up to
     two sets a numeric factor per bisection."""
+    joint_refit: int = 1
+    """When a step of the selection adds nothing, the additions (most gain first) then tried
+    with every chosen strength refitted around them (one ascent round each, about
+    ``strengths + 1`` sets a factor); 0 = none."""
 
     def __post_init__(self):
         if self.refine not in ("none", "visual", "all"):
@@ -151,6 +155,7 @@ class Budget:
         check_int("budget.joint_rounds", self.joint_rounds)
         check_int("budget.joint_strengths", self.joint_strengths)
         check_int("budget.joint_interval_refine", self.joint_interval_refine, low=0)
+        check_int("budget.joint_refit", self.joint_refit, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
 
@@ -1040,6 +1045,7 @@ def _joint_fit(
         floor=floor,
         rounds=budget.joint_rounds,
         interval_refine=budget.joint_interval_refine,
+        refit=budget.joint_refit,
     )
     return dataclasses.replace(fit, kernel_gap=bool(reference.kernel_rungs))
 

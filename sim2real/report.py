@@ -490,7 +490,10 @@ def _selection_lines(path: list[dict]) -> list[str]:
         measured = sorted(step["measured"].items(), key=lambda kv: -kv[1])
         tried = ", ".join(f"{n} {100 * v:.0f} %" for n, v in measured)
         tied = f"tied: {', '.join(step['tied'])}" if step.get("tied") else ""
-        if step["added"]:
+        if step["added"] and step.get("refit"):
+            strengths = ", ".join(f"{n} {v}" for n, v in step["refit"][step["added"]].items())
+            added = f"{step['added']} (others refitted around it: {strengths})"
+        elif step["added"]:
             added = step["added"] + (f" ({tied} before it)" if tied else "")
             apart = step.get("kernel_apart", {}).get(step["added"])
             if apart:
@@ -511,7 +514,9 @@ def _selection_lines(path: list[dict]) -> list[str]:
         "addition); the best was added when it closed at least 5 % more and could be told "
         "from every addition it did not clearly beat (it still adds on top of it) or removed "
         "at least 0.1 more of the kernel distance (MMD²) than it; additions that could not be "
-        "told apart are listed as tied.",
+        "told apart are listed as tied. After a step that added nothing, the additions that "
+        "had gained most were tried once more with every chosen strength refitted around "
+        "them (a chosen factor at a fixed strength can stand in for part of another effect).",
         "",
         markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",

@@ -315,6 +315,7 @@ def select(
     verify: int,
     gain: float = MATTERS,
     floor: float = 0.0,
+    refit: int = 0,
 ) -> tuple[list[Factor], Assignment, Value, list[dict]]:
     """Greedy forward selection of the factors of S*, each chosen with the others in place.
 
@@ -329,6 +330,13 @@ def select(
     tied ones stay in the pool: a later step, with more of S* in place, may tell them
     apart). Stops after ``top`` factors or a step without an addition.
 
+    A step without an addition is followed, when ``refit`` > 0 and some factor is chosen, by a
+    refit step (:func:`_refit_step`): the ``refit`` additions that gained most when they were
+    measured (at any step) are each added with every chosen strength refitted around them.
+    Forward selection holds a chosen strength fixed, so an effect that the first factor stood
+    in for (an over-strong codec mimicking a finer texture) adds nothing on top of it; with
+    that strength relaxed it can.
+
     Returns:
         The chosen factors (in the order added, each starting at its chosen strength), their
         assignment, its value, and the path (one entry per step).
@@ -339,6 +347,8 @@ def select(
     current: dict[str, object] = {}
     (value,) = evaluate([()])
     path = []
+    gains: dict[str, tuple[float, object]] = {}  # best gain each addition was measured at
+    refitted: set[str] = set()
     while len(current) < top:
         used = {by_name[n].setting for n in current}
         open_ = [f for f in factors if f.name not in current and f.setting not in used]
@@ -353,10 +363,13 @@ def select(
         shortlist = _round_robin(best, {f.name: f.stage for f in open_}, verify)
         trials = [assignment({**current, n: best[n][1]}) for n in shortlist]
         values = evaluate(trials)
+        for n, v in zip(shortlist, values, strict=True):
+            if n not in gains or v.closure - value.closure > gains[n][0]:
+                gains[n] = (v.closure - value.closure, best[n][1])
         ranked = sorted(zip(shortlist, values, strict=True), key=lambda nv: -nv[1].closure)
         kept = [(n, v) for n, v in ranked if _qualifies(by_name[n], v, value, gain, floor)]
         step = {
-            "step": len(current) + 1,
+            "step": len(path) + 1,
             "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
             "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
         }
@@ -386,12 +399,84 @@ def select(
         if beaten:
             step["kernel_beaten"] = beaten
         path.append(step)
-        if chosen is None:
+        if chosen is not None:
+            current[chosen] = best[chosen][1]
+            value = measured
+            continue
+        runners = sorted(
+            (
+                n
+                for n in gains
+                if n not in current
+                and n not in refitted
+                and gains[n][0] > 0
+                and by_name[n].setting not in used
+            ),
+            key=lambda n: -gains[n][0],
+        )[: refit if current else 0]
+        if not runners:
             break
-        current[chosen] = best[chosen][1]
-        value = measured
+        refitted.update(runners)
+        step, fitted, measured = _refit_step(
+            current, value, runners, gains, by_name, evaluate, gain, floor
+        )
+        step["step"] = len(path) + 1
+        path.append(step)
+        if fitted is None:
+            break
+        current, value = fitted, measured
     chosen_factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
     return chosen_factors, assignment(current), value, path
+
+
+def _refit_step(
+    current: dict[str, object],
+    value: Value,
+    runners: list[str],
+    gains: dict[str, tuple[float, object]],
+    by_name: dict[str, Factor],
+    evaluate: Evaluate,
+    gain: float,
+    floor: float,
+) -> tuple[dict, dict[str, object] | None, Value]:
+    """Each runner added with every chosen strength refitted (one :func:`calibrate` round).
+
+    A runner is added when it stays in the refitted assignment, that assignment qualifies
+    against the current one (:func:`_qualifies`), and it can be told from every other runner
+    that qualifies (a bootstrap interval of the difference above 0, or
+    :func:`_kernel_apart`); otherwise the runners that cannot be told apart are tied.
+
+    Returns:
+        The path entry, the new strengths (``None``: nothing added) and their value.
+    """
+    fits = []
+    for name in runners:
+        factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
+        factors.append(dataclasses.replace(by_name[name], start=gains[name][1]))
+        fitted, measured, _ = calibrate(factors, evaluate, rounds=1)
+        fits.append((name, dict(fitted), measured))
+    step: dict = {
+        "refit": {n: {k: _shown(v) for k, v in a.items()} for n, a, _ in fits},
+        "measured": {n: v.closure for n, _, v in fits},
+    }
+    kept = sorted(
+        ((n, a, v) for n, a, v in fits if n in a and _qualifies(by_name[n], v, value, gain, floor)),
+        key=lambda f: -f[2].closure,
+    )
+    if not kept:
+        step["added"] = None
+        return step, None, value
+    leader, strengths, lead = kept[0]
+    tied = [
+        n
+        for n, _, v in kept[1:]
+        if _interval(lead.replicates - v.replicates)[0] <= 0 and not _kernel_apart(lead, v)
+    ]
+    if tied:
+        step["added"], step["tied"] = None, [leader, *tied]
+        return step, None, value
+    step["added"] = leader
+    return step, strengths, lead
 
 
 def _substitutes(
@@ -746,6 +831,7 @@ def fit_jointly(
     tolerance: float = JOINT_TOLERANCE,
     matters: float = MATTERS,
     interval_refine: int = 0,
+    refit: int = 0,
 ) -> JointFit:
     """:func:`select` (with ``screen``), :func:`calibrate`, then :func:`attribute` at S*.
 
@@ -767,7 +853,14 @@ def fit_jointly(
     tied: list[str] = []
     if screen is not None:
         factors, _, _, path = select(
-            factors, cached, screen, top=top, verify=verify, gain=matters, floor=floor
+            factors,
+            cached,
+            screen,
+            top=top,
+            verify=verify,
+            gain=matters,
+            floor=floor,
+            refit=refit,
         )
         chosen = {f.name for f in factors}
         tied = list(dict.fromkeys(n for step in path for n in step.get("tied", [])))

@@ -459,3 +459,61 @@ def test_refined_intervals_hold_the_planted_strength(scene):
         assert c_low <= low and high <= c_high  # bisected inwards from the grid's bounds
         assert min(grid) <= c_low and c_high <= max(grid)
     assert fit.strength_interval != coarse.strength_interval  # the bisection narrowed one
+
+
+def _strength_game(closure_of):
+    """``evaluate`` and ``screen`` of a game whose closure depends on the strengths."""
+
+    def evaluate(batch):
+        return [
+            Value(c, np.full(9, c) + np.linspace(0, 0.01, 9))
+            for c in (closure_of(dict(a)) for a in batch)
+        ]
+
+    def screen(current, additions):
+        return [closure_of({**dict(current), n: s}) for n, s in additions]
+
+    return evaluate, screen
+
+
+def _stand_in(strengths: dict) -> float:
+    # A strong alone closes most, but then stands in for B's part: B adds nothing on top of
+    # it; with A mild, A and B together close nearly all of the gap
+    a, b = strengths.get("a"), "b" in strengths
+    if a == "strong":
+        return 0.52 if b else 0.5
+    if a == "mild":
+        return 0.9 if b else 0.3
+    return 0.15 if b else 0.0
+
+
+def test_a_stalled_selection_refits_the_chosen_strengths_around_the_best_runner_up():
+    evaluate, screen = _strength_game(_stand_in)
+    pool = [Factor("a", "camera", ("strong", "mild")), Factor("b", "appearance", (None,))]
+    found, calibrated, value, path = select(pool, evaluate, screen, top=3, verify=2)
+    assert [f.name for f in found] == ["a"] and value.closure == 0.5  # forward selection
+    assert path[-1]["added"] is None and len(path) == 2
+    found, calibrated, value, path = select(pool, evaluate, screen, top=3, verify=2, refit=1)
+    assert dict(calibrated) == {"a": "mild", "b": None} and value.closure == 0.9
+    refit = path[2]
+    assert refit["step"] == 3 and refit["added"] == "b"
+    assert refit["refit"] == {"b": {"a": "mild", "b": "on"}} and refit["measured"]["b"] == 0.9
+    assert len(path) == 3  # no factor is left to try
+    fit = fit_jointly(pool, evaluate, screen=screen, top=3, verify=2, refit=1)
+    assert fit.strengths == {"a": "mild", "b": None} and fit.closure == 0.9
+
+
+def test_a_refit_that_gains_too_little_adds_nothing_and_nothing_chosen_means_no_refit():
+    def closure(strengths):
+        return _stand_in(strengths) if strengths.get("a") != "mild" else 0.3 + 0.02 * (
+            "b" in strengths
+        )
+
+    evaluate, screen = _strength_game(closure)
+    pool = [Factor("a", "camera", ("strong", "mild")), Factor("b", "appearance", (None,))]
+    found, calibrated, value, path = select(pool, evaluate, screen, top=3, verify=2, refit=1)
+    assert dict(calibrated) == {"a": "strong"} and value.closure == 0.5
+    assert path[-1]["added"] is None and path[-1]["measured"] == {"b": 0.52}
+    evaluate, screen = _strength_game(lambda strengths: 0.02 * len(strengths))
+    found, _, _, path = select(pool, evaluate, screen, top=3, verify=2, refit=1)
+    assert found == [] and len(path) == 1  # no factor chosen: nothing to refit around

@@ -69,4 +69,15 @@ def test_the_report_says_how_the_factors_were_chosen():
         "| 2 | a; told from b by the kernel distance; passed over: d (a tied rival removes more "
         "of the kernel distance) | a 50 %, b 50 % |"
     )
+    refit = {
+        "step": 3,
+        "added": "look.texture_mode",
+        "refit": {"look.texture_mode": {"visual.compression": 30, "look.texture_mode": "random"}},
+        "measured": {"look.texture_mode": 0.8},
+    }
+    table = next(s for s in _selection_lines([refit]) if "| step" in s)
+    assert str(table).splitlines()[2] == (
+        "| 3 | look.texture_mode (others refitted around it: visual.compression 30, "
+        "look.texture_mode random) | look.texture_mode 80 % |"
+    )
     assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show
