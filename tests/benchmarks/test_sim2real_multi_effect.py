@@ -129,7 +129,7 @@ def test_the_command_writes_json_and_table_and_names_bad_inputs(tmp_path, capsys
 def test_a_cold_diagnosis_on_a_quiet_machine_is_judged_against_the_time_target(tmp_path, capsys):
     bench = tmp_path / "bench.txt"
     bench.write_text(
-        'seal 3 min; diagnose 34 min\n'
+        "seal 3 min; diagnose 34 min\n"
         '{"diagnose_minutes": 34.0, "candidate_sets": 80, "kind": "multi"}\n'
     )
     round_ = tmp_path / "round"

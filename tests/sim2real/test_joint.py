@@ -505,8 +505,10 @@ def test_a_stalled_selection_refits_the_chosen_strengths_around_the_best_runner_
 
 def test_a_refit_that_gains_too_little_adds_nothing_and_nothing_chosen_means_no_refit():
     def closure(strengths):
-        return _stand_in(strengths) if strengths.get("a") != "mild" else 0.3 + 0.02 * (
-            "b" in strengths
+        return (
+            _stand_in(strengths)
+            if strengths.get("a") != "mild"
+            else 0.3 + 0.02 * ("b" in strengths)
         )
 
     evaluate, screen = _strength_game(closure)
