@@ -232,10 +232,22 @@ def table(result: dict) -> str:
     lines = ["| measure | target | measured | met |", "|---|---|---|---|"]
     for key, t in result["targets"].items():
         value = t["measured"]
-        shown = "–" if value is None else f"{value:.2f}"
+        shown = "–" if value is None else str(value) if isinstance(value, int) else f"{value:.2f}"
         met = "–" if t["met"] is None else ("yes" if t["met"] else "no")
         lines.append(f"| {key} | {t['target']} | {shown} | {met} |")
     sets = result["sets"]
+    also = [
+        ("factor F1 over the effects that matter", result.get("factor_f1_matter")),
+        ("factor precision", result.get("factor_precision")),
+        ("factor recall", result.get("factor_recall")),
+        ("stage share error, median (points)", result["stage_share_error_pts"]["median"]),
+    ]
+    lines.append("")
+    lines.append(
+        "Also measured: "
+        + "; ".join(f"{name} {'–' if v is None else f'{v:.2f}'}" for name, v in also)
+        + "."
+    )
     lines.append("")
     lines.append(
         f"{sets['multi']} multi-effect and {sets['twin']} effect-free sets (seeds "
