@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -258,6 +259,8 @@ def table(result: dict) -> str:
             else "the longest diagnosis of the round (library cached, machine often shared)."
         )
     )
+    if result.get("command"):
+        lines += ["", f"Made by `{result['command']}`."]
     return "\n".join(lines) + "\n"
 
 
@@ -293,6 +296,8 @@ def main(argv: list[str] | None = None) -> dict:
         loop = loop_figures(json.loads(path.read_text()))
     speed = None if args.speed is None else speed_figures(args.speed)
     result = figures(rows, loop, speed)
+    given = sys.argv[1:] if argv is None else argv
+    result["command"] = " ".join(["python -m benchmarks.sim2real_multi_effect", *given])
     check_output_dir(args.out, "--out")
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(

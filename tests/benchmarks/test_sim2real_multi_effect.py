@@ -138,6 +138,7 @@ def test_a_cold_diagnosis_on_a_quiet_machine_is_judged_against_the_time_target(t
     out = tmp_path / "results"
     result = main(["--validation", str(round_), "--speed", str(bench), "--out", str(out)])
     assert result["quick_minutes"]["cold"] == 34.0 and result["quick_minutes"]["max"] == 14.0
+    assert result["command"].startswith("python -m benchmarks.sim2real_multi_effect --validation")
     assert result["targets"]["quick_minutes"] == {
         "target": "<= 30",
         "measured": 34.0,
