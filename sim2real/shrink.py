@@ -49,6 +49,9 @@ from .result import Diagnosis
 
 __all__ = ["INITS", "chosen_effects", "on_material_set", "shrink"]
 
+CALIBRATED = "calibrated"
+"""``use_effects`` value: every factor of the calibrated simulator, named or not."""
+
 INITS = ("weights", "scratch")
 """How the model after starts: the run's weights (fine-tuned) or a fresh initialisation."""
 
@@ -56,9 +59,17 @@ INITS = ("weights", "scratch")
 def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple[str, object]]:
     """(candidate, strength) pairs to add to the training data.
 
-    ``override`` ("a=1,b=2"), else every factor the joint calibration names (the calibrated
-    simulator S*, :attr:`JointFit.named`), else the explained top.
+    ``override`` ("a=1,b=2"; ``calibrated``: every factor of the calibrated simulator S*,
+    named or not, :attr:`JointFit.strengths`), else every factor the joint calibration names
+    (:attr:`JointFit.named`), else the explained top.
     """
+    if override == CALIBRATED:
+        if result.joint is None or not result.joint.strengths:
+            raise ValueError(
+                "use_effects=calibrated: the diagnosis has no calibrated simulator (no factor "
+                "was chosen); pass use_effects=name=strength,..."
+            )
+        return list(result.joint.strengths.items())
     if override:
         pairs = []
         for item in override.split(","):
@@ -69,9 +80,15 @@ def chosen_effects(result: Diagnosis, override: str | None = None) -> list[tuple
         return list(result.joint.named.items())
     ranking = result.ranking
     if not ranking.explained:
+        calibrated = result.joint is not None and result.joint.strengths
         raise ValueError(
-            "the diagnosis named no effect (unexplained residual); "
-            "pass use_effects=name=strength,..."
+            "the diagnosis named no effect (unexplained residual); pass "
+            + (
+                "use_effects=calibrated (its calibrated simulator, unnamed) or "
+                if calibrated
+                else ""
+            )
+            + "use_effects=name=strength,..."
         )
     top = result.candidates[ranking.top]
     return [(ranking.top, top["best_strength"])]
@@ -459,7 +476,9 @@ def run(cfg) -> dict:
     check_choice(cfg.data_preset, "data_preset", ["same", *sorted(PRESETS)])
     effects = cfg.use_effects
     if effects is not None and (not isinstance(effects, str) or not effects.strip()):
-        raise InputError(f"use_effects must be name=strength,... or null, got {effects!r}")
+        raise InputError(
+            f"use_effects must be name=strength,..., calibrated or null, got {effects!r}"
+        )
     columns = cfg.columns
     if (
         not OmegaConf.is_list(columns)

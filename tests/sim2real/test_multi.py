@@ -180,6 +180,13 @@ def test_the_closed_loop_retrains_with_every_factor_of_the_calibrated_simulator(
     with pytest.raises(ValueError, match="named no effect"):
         chosen_effects(_diagnosis(None))
     assert chosen_effects(_diagnosis(joint), "scene.size=0.5") == [("scene.size", 0.5)]
+    # a calibrated simulator that closes too little to name its factors, used on request
+    partial = _diagnosis(_joint({"scene.size": 0.2}, STAGES))
+    with pytest.raises(ValueError, match="use_effects=calibrated"):
+        chosen_effects(partial)
+    assert chosen_effects(partial, "calibrated") == [("scene.size", 1.0)]
+    with pytest.raises(ValueError, match="no calibrated simulator"):
+        chosen_effects(_diagnosis(None), "calibrated")
 
 
 def test_the_truth_is_refitted_from_its_sealed_strengths_over_the_scored_grid():
