@@ -146,12 +146,18 @@ def truth_attribution(result: Diagnosis, answer: dict, *, n_jobs: int = 1) -> di
     }
 
 
-def _f1(named: set[str], truth: set[str]) -> tuple[float, float, float]:
+def _f1(named: set[str], truth: set[str]) -> tuple[float | None, float, float]:
+    """Precision, recall and F1 of the named factors.
+
+    Naming nothing where something was withheld has no precision (no factor named was
+    wrong; ``None``, left out of the round's mean) and F1 0 (recall 0).
+    """
     hit = len(named & truth)
-    precision = hit / len(named) if named else (1.0 if not truth else 0.0)
+    precision = hit / len(named) if named else (1.0 if not truth else None)
     recall = hit / len(truth) if truth else 1.0
-    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
-    return precision, recall, f1
+    if precision is None or precision + recall == 0:
+        return precision, recall, 0.0
+    return precision, recall, 2 * precision * recall / (precision + recall)
 
 
 def strengths_in_intervals(result: Diagnosis, answer: dict, truth: dict | None) -> tuple[int, int]:

@@ -115,6 +115,13 @@ def test_factor_scores_and_stage_shares_against_the_truth():
     summary = summarise([row, {**row, "seed": 8, "stage_share_error_pts": 30.0}])
     assert summary["factor_f1"] == pytest.approx(2 / 3) and summary["factor_f1_n"] == 2
     assert summary["stage_share_error_pts_max"] == 30.0
+    # naming nothing: no precision (no named factor was wrong), recall and F1 0
+    empty = score_set(_diagnosis(_joint({"scene.size": 0.2}, STAGES)), answer, truth)
+    assert empty["factor_precision"] is None
+    assert empty["factor_recall"] == 0.0 and empty["factor_f1"] == 0.0
+    both = summarise([row, {**empty, "seed": 8}])
+    assert both["factor_precision"] == pytest.approx(2 / 3) and both["factor_precision_n"] == 1
+    assert both["factor_f1"] == pytest.approx(1 / 3) and both["factor_f1_n"] == 2
 
 
 def test_a_named_true_factor_is_checked_against_its_strength_interval():
