@@ -228,12 +228,17 @@ def _speed_note(quick: dict) -> str:
     )
 
 
+def _shown(value) -> str:
+    """A figure as the table prints it: ``–`` unmeasured, a count whole, else two decimals."""
+    return "–" if value is None else str(value) if isinstance(value, int) else f"{value:.2f}"
+
+
 def table(result: dict) -> str:
     """The targets as a Markdown table."""
     lines = ["| measure | target | measured | met |", "|---|---|---|---|"]
     for key, t in result["targets"].items():
         value = t["measured"]
-        shown = "–" if value is None else str(value) if isinstance(value, int) else f"{value:.2f}"
+        shown = _shown(value)
         met = "–" if t["met"] is None else ("yes" if t["met"] else "no")
         lines.append(f"| {key} | {t['target']} | {shown} | {met} |")
     sets = result["sets"]
@@ -244,11 +249,7 @@ def table(result: dict) -> str:
         ("stage share error, median (points)", result["stage_share_error_pts"]["median"]),
     ]
     lines.append("")
-    lines.append(
-        "Also measured: "
-        + "; ".join(f"{name} {'–' if v is None else f'{v:.2f}'}" for name, v in also)
-        + "."
-    )
+    lines.append("Also measured: " + "; ".join(f"{name} {_shown(v)}" for name, v in also) + ".")
     lines.append("")
     lines.append(
         f"{sets['multi']} multi-effect and {sets['twin']} effect-free sets (seeds "
