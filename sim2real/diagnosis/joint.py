@@ -344,32 +344,59 @@ def select(
     by_name = {f.name: f for f in factors}
     if len(by_name) != len(factors):
         raise ValueError(f"factors must have distinct names, got {[f.name for f in factors]}")
-    current: dict[str, object] = {}
     (value,) = evaluate([()])
-    path = []
-    gains: dict[str, tuple[float, object]] = {}  # best gain each addition was measured at
-    refitted: set[str] = set()
-    while len(current) < top:
-        used = {by_name[n].setting for n in current}
-        open_ = [f for f in factors if f.name not in current and f.setting not in used]
+    state = _Selection(factors, by_name, evaluate, screen, verify, gain, floor, refit, {}, value)
+    while len(state.current) < top and state.grow():
+        pass
+    chosen = [dataclasses.replace(by_name[n], start=s) for n, s in state.current.items()]
+    return chosen, assignment(state.current), state.value, state.path
+
+
+@dataclasses.dataclass
+class _Selection:
+    """The state of :func:`select`: S* so far, its value, the path and the gains measured."""
+
+    factors: Sequence[Factor]
+    by_name: dict[str, Factor]
+    evaluate: Evaluate
+    screen: Screen
+    verify: int
+    gain: float
+    floor: float
+    refit: int
+    current: dict[str, object]
+    value: Value
+    path: list[dict] = dataclasses.field(default_factory=list)
+    gains: dict[str, tuple[float, object]] = dataclasses.field(default_factory=dict)
+    """The best gain each addition was measured at, and its strength."""
+    refitted: set[str] = dataclasses.field(default_factory=set)
+
+    def grow(self) -> bool:
+        """One forward step or, after a stall, one refit step; whether a factor was added."""
+        used = {self.by_name[n].setting for n in self.current}
+        open_ = [f for f in self.factors if f.name not in self.current and f.setting not in used]
         additions = [(f.name, s) for f in open_ for s in f.options]
         if not additions:
-            break
-        estimates = screen(assignment(current), additions)
+            return False
+        estimates = self.screen(assignment(self.current), additions)
         best: dict[str, tuple[float, object]] = {}
         for (name, strength), estimate in zip(additions, estimates, strict=True):
             if name not in best or estimate > best[name][0]:
                 best[name] = (float(estimate), strength)
-        shortlist = _round_robin(best, {f.name: f.stage for f in open_}, verify)
-        trials = [assignment({**current, n: best[n][1]}) for n in shortlist]
-        values = evaluate(trials)
+        shortlist = _round_robin(best, {f.name: f.stage for f in open_}, self.verify)
+        trials = [assignment({**self.current, n: best[n][1]}) for n in shortlist]
+        values = self.evaluate(trials)
         for n, v in zip(shortlist, values, strict=True):
-            if n not in gains or v.closure - value.closure > gains[n][0]:
-                gains[n] = (v.closure - value.closure, best[n][1])
+            if n not in self.gains or v.closure - self.value.closure > self.gains[n][0]:
+                self.gains[n] = (v.closure - self.value.closure, best[n][1])
         ranked = sorted(zip(shortlist, values, strict=True), key=lambda nv: -nv[1].closure)
-        kept = [(n, v) for n, v in ranked if _qualifies(by_name[n], v, value, gain, floor)]
+        kept = [
+            (n, v)
+            for n, v in ranked
+            if _qualifies(self.by_name[n], v, self.value, self.gain, self.floor)
+        ]
         step = {
-            "step": len(path) + 1,
+            "step": len(self.path) + 1,
             "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
             "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
         }
@@ -380,7 +407,13 @@ def select(
                 continue
             others = [(n, v) for n, v in kept if n != leader]
             twins = _substitutes(
-                [(leader, lead), *others], current, best, by_name, evaluate, gain, floor
+                [(leader, lead), *others],
+                self.current,
+                best,
+                self.by_name,
+                self.evaluate,
+                self.gain,
+                self.floor,
             )
             if any(_kernel_apart(values_of[n], lead) for n in twins):
                 beaten.append(leader)  # a twin removes clearly more of the kernel distance
@@ -398,35 +431,41 @@ def select(
             step["tied"] = tied
         if beaten:
             step["kernel_beaten"] = beaten
-        path.append(step)
+        self.path.append(step)
         if chosen is not None:
-            current[chosen] = best[chosen][1]
-            value = measured
-            continue
+            self.current[chosen] = best[chosen][1]
+            self.value = measured
+            return True
         runners = sorted(
             (
                 n
-                for n in gains
-                if n not in current
-                and n not in refitted
-                and gains[n][0] > 0
-                and by_name[n].setting not in used
+                for n in self.gains
+                if n not in self.current
+                and n not in self.refitted
+                and self.gains[n][0] > 0
+                and self.by_name[n].setting not in used
             ),
-            key=lambda n: -gains[n][0],
-        )[: refit if current else 0]
+            key=lambda n: -self.gains[n][0],
+        )[: self.refit if self.current else 0]
         if not runners:
-            break
-        refitted.update(runners)
+            return False
+        self.refitted.update(runners)
         step, fitted, measured = _refit_step(
-            current, value, runners, gains, by_name, evaluate, gain, floor
+            self.current,
+            self.value,
+            runners,
+            self.gains,
+            self.by_name,
+            self.evaluate,
+            self.gain,
+            self.floor,
         )
-        step["step"] = len(path) + 1
-        path.append(step)
+        step["step"] = len(self.path) + 1
+        self.path.append(step)
         if fitted is None:
-            break
-        current, value = fitted, measured
-    chosen_factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
-    return chosen_factors, assignment(current), value, path
+            return False
+        self.current, self.value = fitted, measured
+        return True
 
 
 def _refit_step(
