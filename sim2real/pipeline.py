@@ -134,6 +134,10 @@ class Budget:
     """When a step of the selection adds nothing, the additions (most gain first) then tried
     with every chosen strength refitted around them (one ascent round each, about
     ``strengths + 1`` sets a factor); 0 = none."""
+    joint_prune: int = 0
+    """Most factors the selection drops from S* when it would stop, each one that no longer
+    matters with the later factors in place (it was a stand-in for them), freeing its place;
+    0 = none. Costs one set a chosen factor per prune step."""
 
     def __post_init__(self):
         if self.refine not in ("none", "visual", "all"):
@@ -156,6 +160,7 @@ class Budget:
         check_int("budget.joint_strengths", self.joint_strengths)
         check_int("budget.joint_interval_refine", self.joint_interval_refine, low=0)
         check_int("budget.joint_refit", self.joint_refit, low=0)
+        check_int("budget.joint_prune", self.joint_prune, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
 
@@ -1046,6 +1051,7 @@ def _joint_fit(
         rounds=budget.joint_rounds,
         interval_refine=budget.joint_interval_refine,
         refit=budget.joint_refit,
+        prune=budget.joint_prune,
     )
     return dataclasses.replace(fit, kernel_gap=bool(reference.kernel_rungs))
 

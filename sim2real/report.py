@@ -487,6 +487,9 @@ def _selection_lines(path: list[dict]) -> list[str]:
     """How S* was chosen: each step's addition and the closures it was measured against."""
     rows = []
     for step in (s for s in path if "step" in s):
+        if "reset" in step:
+            rows.append([str(step["step"]), *_prune_cells(step)])
+            continue
         measured = sorted(step["measured"].items(), key=lambda kv: -kv[1])
         tried = ", ".join(f"{n} {100 * v:.0f} %" for n, v in measured)
         tied = f"tied: {', '.join(step['tied'])}" if step.get("tied") else ""
@@ -516,10 +519,23 @@ def _selection_lines(path: list[dict]) -> list[str]:
         "at least 0.1 more of the kernel distance (MMD²) than it; additions that could not be "
         "told apart are listed as tied. After a step that added nothing, the additions that "
         "had gained most were tried once more with every chosen strength refitted around "
-        "them (a chosen factor at a fixed strength can stand in for part of another effect).",
+        "them (a chosen factor at a fixed strength can stand in for part of another effect). "
+        "Where the selection would stop, the chosen factor that gave back least when reset "
+        "alone was dropped if that was under 5 % (a stand-in for factors added after it), "
+        "and the selection went on.",
         "",
         markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",
+    ]
+
+
+def _prune_cells(step: dict) -> list[str]:
+    """A prune step's cells: what it dropped, and what each chosen factor gave back reset."""
+    reset = sorted(step["reset"].items(), key=lambda kv: kv[1])
+    dropped = step["dropped"]
+    return [
+        f"dropped {dropped} (it no longer matters)" if dropped else "none dropped (each matters)",
+        "reset alone gives back: " + ", ".join(f"{n} {100 * v:.0f} %" for n, v in reset),
     ]
 
 

@@ -316,6 +316,7 @@ def select(
     gain: float = MATTERS,
     floor: float = 0.0,
     refit: int = 0,
+    prune: int = 0,
 ) -> tuple[list[Factor], Assignment, Value, list[dict]]:
     """Greedy forward selection of the factors of S*, each chosen with the others in place.
 
@@ -337,6 +338,14 @@ def select(
     in for (an over-strong codec mimicking a finer texture) adds nothing on top of it; with
     that strength relaxed it can.
 
+    Where the selection would stop (``top`` factors chosen, or a stall that no refit ends) and
+    ``prune`` > 0, a prune step (:meth:`_Selection.prune`) drops the chosen factor that
+    matters least with the later ones in place, if it no longer matters (resetting it alone
+    gives back less than ``gain``, the rule :func:`attribute` keeps a factor by), and the
+    selection goes on from the rest. A factor chosen early as a stand-in for effects added
+    after it would otherwise hold its place to the end. A dropped factor is not tried again;
+    at most ``prune`` are dropped.
+
     Returns:
         The chosen factors (in the order added, each starting at its chosen strength), their
         assignment, its value, and the path (one entry per step).
@@ -346,7 +355,9 @@ def select(
         raise ValueError(f"factors must have distinct names, got {[f.name for f in factors]}")
     (value,) = evaluate([()])
     state = _Selection(factors, by_name, evaluate, screen, verify, gain, floor, refit, {}, value)
-    while len(state.current) < top and state.grow():
+    while (len(state.current) < top and state.grow()) or (
+        len(state.dropped) < prune and state.prune()
+    ):
         pass
     chosen = [dataclasses.replace(by_name[n], start=s) for n, s in state.current.items()]
     return chosen, assignment(state.current), state.value, state.path
@@ -370,11 +381,17 @@ class _Selection:
     gains: dict[str, tuple[float, object]] = dataclasses.field(default_factory=dict)
     """The best gain each addition was measured at, and its strength."""
     refitted: set[str] = dataclasses.field(default_factory=set)
+    dropped: list[str] = dataclasses.field(default_factory=list)
+    """Factors a prune step took out of S*; never tried again."""
 
     def grow(self) -> bool:
         """One forward step or, after a stall, one refit step; whether a factor was added."""
         used = {self.by_name[n].setting for n in self.current}
-        open_ = [f for f in self.factors if f.name not in self.current and f.setting not in used]
+        open_ = [
+            f
+            for f in self.factors
+            if f.name not in self.current and f.name not in self.dropped and f.setting not in used
+        ]
         additions = [(f.name, s) for f in open_ for s in f.options]
         if not additions:
             return False
@@ -442,6 +459,7 @@ class _Selection:
                 for n in self.gains
                 if n not in self.current
                 and n not in self.refitted
+                and n not in self.dropped
                 and self.gains[n][0] > 0
                 and self.by_name[n].setting not in used
             ),
@@ -465,6 +483,29 @@ class _Selection:
         if fitted is None:
             return False
         self.current, self.value = fitted, measured
+        return True
+
+    def prune(self) -> bool:
+        """Drop the chosen factor that matters least, if it no longer matters; whether one was.
+
+        With fewer than two chosen there is nothing to weigh one against (a lone factor
+        gives back all it closes), and no step is recorded.
+        """
+        if len(self.current) < 2:
+            return False
+        names = list(self.current)
+        without = self.evaluate(
+            [assignment({k: v for k, v in self.current.items() if k != n}) for n in names]
+        )
+        reset = {n: self.value.closure - v.closure for n, v in zip(names, without, strict=True)}
+        least = min(names, key=lambda n: reset[n])
+        dropped = least if reset[least] < self.gain else None
+        self.path.append({"step": len(self.path) + 1, "reset": reset, "dropped": dropped})
+        if dropped is None:
+            return False
+        self.dropped.append(dropped)
+        self.current = {n: s for n, s in self.current.items() if n != dropped}
+        self.value = without[names.index(dropped)]
         return True
 
 
@@ -871,6 +912,7 @@ def fit_jointly(
     matters: float = MATTERS,
     interval_refine: int = 0,
     refit: int = 0,
+    prune: int = 0,
 ) -> JointFit:
     """:func:`select` (with ``screen``), :func:`calibrate`, then :func:`attribute` at S*.
 
@@ -900,6 +942,7 @@ def fit_jointly(
             gain=matters,
             floor=floor,
             refit=refit,
+            prune=prune,
         )
         chosen = {f.name for f in factors}
         tied = list(dict.fromkeys(n for step in path for n in step.get("tied", [])))

@@ -519,3 +519,46 @@ def test_a_refit_that_gains_too_little_adds_nothing_and_nothing_chosen_means_no_
     evaluate, screen = _strength_game(lambda strengths: 0.02 * len(strengths))
     found, _, _, path = select(pool, evaluate, screen, top=3, verify=2, refit=1)
     assert found == [] and len(path) == 1  # no factor chosen: nothing to refit around
+
+
+def _overlap(strengths: dict) -> float:
+    # a closes most alone, but b and c, added after it, each explain much of its part; d is
+    # small and independent: with a in place d loses to c, with a dropped it fits in
+    has = set(strengths)
+    a = max(0.0, 0.35 - 0.16 * ("b" in has) - 0.17 * ("c" in has)) if "a" in has else 0.0
+    return a + 0.3 * ("b" in has) + 0.27 * ("c" in has) + 0.08 * ("d" in has)
+
+
+def test_a_stand_in_the_later_factors_explain_is_dropped_and_its_place_refilled():
+    evaluate, screen = _strength_game(_overlap)
+    pool = [
+        Factor(n, stage, (None,))
+        for n, stage in zip("abcd", ("physics", "scene", "look", "camera"), strict=True)
+    ]
+    found, _, value, path = select(pool, evaluate, screen, top=3, verify=4)
+    assert [f.name for f in found] == ["a", "b", "c"] and value.closure == pytest.approx(0.59)
+    assert len(path) == 3  # full: forward selection stops
+    found, _, value, path = select(pool, evaluate, screen, top=3, verify=4, prune=2)
+    assert [f.name for f in found] == ["b", "c", "d"] and value.closure == pytest.approx(0.65)
+    prune = path[3]
+    assert prune["step"] == 4 and prune["dropped"] == "a"
+    assert prune["reset"] == pytest.approx({"a": 0.02, "b": 0.14, "c": 0.10})
+    assert path[4]["added"] == "d"
+    assert path[5]["dropped"] is None and len(path) == 6  # b, c, d each matter: it stops
+    fit = fit_jointly(pool, evaluate, screen=screen, top=3, verify=4, prune=1)
+    assert fit.strengths == {"b": None, "c": None, "d": None}
+    assert fit.closure == pytest.approx(0.65)
+
+
+def test_nothing_is_pruned_from_one_factor_or_from_factors_that_all_matter():
+    evaluate, screen = _strength_game(_overlap)
+    pool = [Factor(n, "physics", (None,)) for n in "abcd"]
+    found, _, _, path = select(pool, evaluate, screen, top=1, verify=4, prune=3)
+    assert [f.name for f in found] == ["a"] and len(path) == 1  # no prune step with one
+    evaluate, screen = _strength_game(lambda s: 0.2 * len(s) if set(s) <= {"b", "c"} else 0.0)
+    found, _, _, path = select(pool, evaluate, screen, top=4, verify=4, prune=3)
+    assert {f.name for f in found} == {"b", "c"}
+    assert path[-1]["dropped"] is None and path[-1]["reset"] == pytest.approx({"b": 0.2, "c": 0.2})
+    evaluate, screen = _strength_game(lambda strengths: 0.02 * len(strengths))
+    found, _, _, path = select(pool, evaluate, screen, top=3, verify=2, prune=3)
+    assert found == [] and len(path) == 1  # nothing chosen: nothing to prune (a twin)

@@ -80,4 +80,11 @@ def test_the_report_says_how_the_factors_were_chosen():
         "| 3 | look.texture_mode (others refitted around it: visual.compression 30, "
         "look.texture_mode random) | look.texture_mode 80 % |"
     )
+    pruned = {"step": 4, "reset": {"a": 0.02, "b": 0.14}, "dropped": "a"}
+    table = next(s for s in _selection_lines([pruned]) if "| step" in s)
+    assert str(table).splitlines()[2] == (
+        "| 4 | dropped a (it no longer matters) | reset alone gives back: a 2 %, b 14 % |"
+    )
+    kept = next(s for s in _selection_lines([{**pruned, "dropped": None}]) if "| step" in s)
+    assert str(kept).splitlines()[2].startswith("| 4 | none dropped (each matters) |")
     assert _selection_lines(path[2:]) == []  # a fit of given factors: no selection to show
