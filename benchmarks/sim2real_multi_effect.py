@@ -158,6 +158,7 @@ def figures(rows: list[dict], loop: dict | None, speed: dict | None = None) -> d
         "seeds": sorted(int(r["seed"]) for r in rows),
         "factor_f1": summary["factor_f1"],
         "factor_f1_matter": summary["factor_f1_matter"],
+        "factor_f1_ceiling": summary["factor_f1_ceiling"],
         "factor_precision": summary["factor_precision"],
         "factor_recall": summary["factor_recall"],
         "stage_share_error_pts": {
@@ -244,6 +245,11 @@ def table(result: dict) -> str:
     sets = result["sets"]
     also = [
         ("factor F1 over the effects that matter", result.get("factor_f1_matter")),
+        (
+            "factor F1 of naming exactly the effects that matter (the most an answer that "
+            "names only what changes at least 5 % of the gap can score)",
+            result.get("factor_f1_ceiling"),
+        ),
         ("factor precision", result.get("factor_precision")),
         ("factor recall", result.get("factor_recall")),
         ("stage share error, median (points)", result["stage_share_error_pts"]["median"]),

@@ -160,6 +160,17 @@ def _f1(named: set[str], truth: set[str]) -> tuple[float | None, float, float]:
     return precision, recall, 2 * precision * recall / (precision + recall)
 
 
+def f1_ceiling(row: dict) -> float | None:
+    """F1 of a multi set's row had exactly the effects that matter been named (no truth: None).
+
+    A withheld effect that gives back under 5 % of the gap once the others are in place leaves
+    no trace the diagnosis can name, so this bounds what any answer held to that rule scores.
+    """
+    if row.get("truth_matter") is None or not row.get("truth_strengths"):
+        return None
+    return _f1(set(row["truth_matter"]), set(row["truth_strengths"]))[2]
+
+
 def strengths_in_intervals(result: Diagnosis, answer: dict, truth: dict | None) -> tuple[int, int]:
     """How many named true factors have a strength interval, and how many hold the truth.
 

@@ -44,7 +44,7 @@ from ..diagnosis import OPEN_SET_MIN_CLOSURE
 from ..pipeline import Budget, DiagnosisRequest, load_run, run_diagnosis
 from ..report import read_report
 from ..result import Diagnosis
-from .multi import answer_effects, score_multi, truth_attribution
+from .multi import answer_effects, f1_ceiling, score_multi, truth_attribution
 from .rescore import decided_again
 from .seal import SEAL_KINDS, draw_answer, seal_set
 
@@ -206,6 +206,7 @@ def summarise(rows: list[dict]) -> dict:
     out["twin_named_fabric_spread"], _ = rate("named_fabric_spread", ("twin",))
     for key in ("factor_f1", "factor_f1_matter", "factor_precision", "factor_recall"):
         out[key], out[f"{key}_n"] = rate(key, ("multi",))
+    out["factor_f1_ceiling"], _ = _mean(f1_ceiling(r) for r in rows if r["kind"] == "multi")
     checked = sum(r.get("strengths_checked", 0) for r in rows if r["kind"] == "multi")
     inside = sum(r.get("strengths_in_interval", 0) for r in rows if r["kind"] == "multi")
     out["factor_strength_in_interval"] = inside / checked if checked else None

@@ -6,7 +6,7 @@ import pytest
 
 from sim2real.candidates import candidate_library
 from sim2real.diagnosis.joint import JointFit
-from sim2real.study.multi import named_factors, predicted_stage_shares, score_multi
+from sim2real.study.multi import f1_ceiling, named_factors, predicted_stage_shares, score_multi
 from sim2real.study.seal import MULTI_EFFECTS, _base_spec, draw_answer
 from sim2real.study.validate import _table, score_set, summarise
 from tests.sim2real.reports import as_diagnosis
@@ -122,6 +122,19 @@ def test_factor_scores_and_stage_shares_against_the_truth():
     both = summarise([row, {**empty, "seed": 8}])
     assert both["factor_precision"] == pytest.approx(2 / 3) and both["factor_precision_n"] == 1
     assert both["factor_f1"] == pytest.approx(1 / 3) and both["factor_f1_n"] == 2
+    assert summary["factor_f1_ceiling"] is None  # the truth's strengths were not recorded
+
+
+def test_the_f1_ceiling_names_exactly_the_effects_that_matter():
+    withheld = {"physics.air_damping": 0.5, "visual.sensor_noise": 2.0, "scene.size": 0.9}
+    row = {"kind": "multi", "truth_strengths": withheld, "truth_matter": ["scene.size"]}
+    assert f1_ceiling(row) == pytest.approx(0.5)  # precision 1, recall 1/3
+    every = {**row, "truth_matter": sorted(withheld)}
+    assert f1_ceiling(every) == 1.0
+    assert f1_ceiling({**row, "truth_matter": []}) == 0.0  # nothing leaves a trace
+    assert f1_ceiling({"kind": "multi"}) is None
+    summary = summarise([row, every, {"kind": "twin"}])
+    assert summary["factor_f1_ceiling"] == pytest.approx(0.75)
 
 
 def test_a_named_true_factor_is_checked_against_its_strength_interval():
