@@ -519,10 +519,14 @@ def _selection_lines(path: list[dict]) -> list[str]:
         "at least 0.1 more of the kernel distance (MMD²) than it; additions that could not be "
         "told apart are listed as tied. After a step that added nothing, the additions that "
         "had gained most were tried once more with every chosen strength refitted around "
-        "them (a chosen factor at a fixed strength can stand in for part of another effect). "
-        "Where the selection would stop, the chosen factor that gave back least when reset "
-        "alone was dropped if that was under 5 % (a stand-in for factors added after it), "
-        "and the selection went on.",
+        "them (a chosen factor at a fixed strength can stand in for part of another effect)."
+        + (
+            " Where the selection would stop, the chosen factor that gave back least when reset "
+            "alone was dropped if that was under 5 % (a stand-in for factors added after it), "
+            "and the selection went on."
+            if any("reset" in step for step in path)
+            else ""
+        ),
         "",
         markdown_table(["step", "added", "measured (closure with it)"], rows),
         "",

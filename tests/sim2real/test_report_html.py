@@ -80,7 +80,9 @@ def test_the_report_says_how_the_factors_were_chosen():
         "| 3 | look.texture_mode (others refitted around it: visual.compression 30, "
         "look.texture_mode random) | look.texture_mode 80 % |"
     )
+    assert not any("dropped if" in str(line) for line in lines)  # no prune step, no word of it
     pruned = {"step": 4, "reset": {"a": 0.02, "b": 0.14}, "dropped": "a"}
+    assert any("dropped if" in str(line) for line in _selection_lines([pruned]))
     table = next(s for s in _selection_lines([pruned]) if "| step" in s)
     assert str(table).splitlines()[2] == (
         "| 4 | dropped a (it no longer matters) | reset alone gives back: a 2 %, b 14 % |"
