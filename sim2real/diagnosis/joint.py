@@ -25,6 +25,7 @@ features, no new simulation) and the most promising built and measured.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from collections.abc import Callable, Iterable, Sequence
@@ -354,7 +355,7 @@ def select(
     if len(by_name) != len(factors):
         raise ValueError(f"factors must have distinct names, got {[f.name for f in factors]}")
     (value,) = evaluate([()])
-    state = _Selection(factors, by_name, evaluate, screen, verify, gain, floor, refit, {}, value)
+    state = _Selection(factors, evaluate, screen, verify, gain, floor, refit, {}, value)
     while (len(state.current) < top and state.grow()) or (
         len(state.dropped) < prune and state.prune()
     ):
@@ -368,7 +369,6 @@ class _Selection:
     """The state of :func:`select`: S* so far, its value, the path and the gains measured."""
 
     factors: Sequence[Factor]
-    by_name: dict[str, Factor]
     evaluate: Evaluate
     screen: Screen
     verify: int
@@ -383,6 +383,10 @@ class _Selection:
     refitted: set[str] = dataclasses.field(default_factory=set)
     dropped: list[str] = dataclasses.field(default_factory=list)
     """Factors a prune step took out of S*; never tried again."""
+
+    @functools.cached_property
+    def by_name(self) -> dict[str, Factor]:
+        return {f.name: f for f in self.factors}
 
     def grow(self) -> bool:
         """One forward step or, after a stall, one refit step; whether a factor was added."""
