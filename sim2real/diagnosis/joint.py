@@ -327,14 +327,15 @@ def select(
     the best measured one that qualifies: it closes at least ``gain`` more of the gap, its
     group-bootstrap interval of the gain is above 0 and, for a factor that re-simulates, the
     closure beats ``floor`` (what S' closes by chance). It must also be told from every
-    rival it does not clearly beat (:func:`_substitutes`); additions that cannot be told
-    apart are recorded as ``tied`` and the step takes the best one that can, if any (the
-    tied ones stay in the pool: a later step, with more of S* in place, may tell them
+    rival it does not clearly beat (:meth:`_Selection._substitutes`); additions that cannot
+    be told apart are recorded as ``tied`` and the step takes the best one that can, if any
+    (the tied ones stay in the pool: a later step, with more of S* in place, may tell them
     apart). Stops after ``top`` factors or a step without an addition.
 
     A step without an addition is followed, when ``refit`` > 0 and some factor is chosen, by a
-    refit step (:func:`_refit_step`): the ``refit`` additions that gained most when they were
-    measured (at any step) are each added with every chosen strength refitted around them.
+    refit step (:meth:`_Selection._refit_step`): the ``refit`` additions that gained most
+    when they were measured (at any step) are each added with every chosen strength refitted
+    around them.
     Forward selection holds a chosen strength fixed, so an effect that the first factor stood
     in for (an over-strong codec mimicking a finer texture) adds nothing on top of it; with
     that strength relaxed it can.
@@ -427,15 +428,7 @@ class _Selection:
             if leader in tied:
                 continue
             others = [(n, v) for n, v in kept if n != leader]
-            twins = _substitutes(
-                [(leader, lead), *others],
-                self.current,
-                best,
-                self.by_name,
-                self.evaluate,
-                self.gain,
-                self.floor,
-            )
+            twins = self._substitutes([(leader, lead), *others], best)
             if any(_kernel_apart(values_of[n], lead) for n in twins):
                 beaten.append(leader)  # a twin removes clearly more of the kernel distance
                 continue
@@ -472,16 +465,7 @@ class _Selection:
         if not runners:
             return False
         self.refitted.update(runners)
-        step, fitted, measured = _refit_step(
-            self.current,
-            self.value,
-            runners,
-            self.gains,
-            self.by_name,
-            self.evaluate,
-            self.gain,
-            self.floor,
-        )
+        step, fitted, measured = self._refit_step(runners)
         step["step"] = len(self.path) + 1
         self.path.append(step)
         if fitted is None:
@@ -512,93 +496,85 @@ class _Selection:
         self.value = without[names.index(dropped)]
         return True
 
+    def _substitutes(
+        self, kept: list[tuple[str, Value]], best: dict[str, tuple[float, object]]
+    ) -> list[str]:
+        """The qualifying rivals the leader of a step cannot be told from (empty: add it).
 
-def _refit_step(
-    current: dict[str, object],
-    value: Value,
-    runners: list[str],
-    gains: dict[str, tuple[float, object]],
-    by_name: dict[str, Factor],
-    evaluate: Evaluate,
-    gain: float,
-    floor: float,
-) -> tuple[dict, dict[str, object] | None, Value]:
-    """Each runner added with every chosen strength refitted (one :func:`calibrate` round).
-
-    A runner is added when it stays in the refitted assignment, that assignment qualifies
-    against the current one (:func:`_qualifies`), and it can be told from every other runner
-    that qualifies (a bootstrap interval of the difference above 0, or
-    :func:`_kernel_apart`); otherwise the runners that cannot be told apart are tied.
-
-    Returns:
-        The path entry, the new strengths (``None``: nothing added) and their value.
-    """
-    fits = []
-    for name in runners:
-        factors = [dataclasses.replace(by_name[n], start=s) for n, s in current.items()]
-        factors.append(dataclasses.replace(by_name[name], start=gains[name][1]))
-        fitted, measured, _ = calibrate(factors, evaluate, rounds=1)
-        fits.append((name, dict(fitted), measured))
-    step: dict = {
-        "refit": {n: {k: _shown(v) for k, v in a.items()} for n, a, _ in fits},
-        "measured": {n: v.closure for n, _, v in fits},
-    }
-    kept = sorted(
-        ((n, a, v) for n, a, v in fits if n in a and _qualifies(by_name[n], v, value, gain, floor)),
-        key=lambda f: -f[2].closure,
-    )
-    if not kept:
-        step["added"] = None
-        return step, None, value
-    leader, strengths, lead = kept[0]
-    tied = [
-        n
-        for n, _, v in kept[1:]
-        if _interval(lead.replicates - v.replicates)[0] <= 0 and not _kernel_apart(lead, v)
-    ]
-    if tied:
-        step["added"], step["tied"] = None, [leader, *tied]
-        return step, None, value
-    step["added"] = leader
-    return step, strengths, lead
-
-
-def _substitutes(
-    kept: list[tuple[str, Value]],
-    current: dict[str, object],
-    best: dict[str, tuple[float, object]],
-    by_name: dict[str, Factor],
-    evaluate: Evaluate,
-    gain: float,
-    floor: float,
-) -> list[str]:
-    """The qualifying rivals the leader of a step cannot be told from (empty: add it).
-
-    A rival is a qualifying addition whose closure the leader's does not beat by a
-    group-bootstrap interval above 0. The leader is told from it only when, added on top of
-    the rival, it still qualifies: it explains something the rival does not. Otherwise
-    (a rival that shares its setting, or one that leaves the leader nothing to add) the
-    data cannot say which of the two is at work, and naming the first in list order would
-    be a guess.
-    """
-    if not kept:
-        return []
-    leader, lead = kept[0]
-    rivals = [(n, v) for n, v in kept[1:] if _interval(lead.replicates - v.replicates)[0] <= 0]
-    shared = [n for n, _ in rivals if by_name[n].setting == by_name[leader].setting]
-    paired = [(n, v) for n, v in rivals if n not in shared]
-    both = (
-        evaluate(
-            [assignment({**current, leader: best[leader][1], n: best[n][1]}) for n, _ in paired]
+        A rival is a qualifying addition whose closure the leader's does not beat by a
+        group-bootstrap interval above 0. The leader is told from it only when, added on top of
+        the rival, it still qualifies: it explains something the rival does not. Otherwise
+        (a rival that shares its setting, or one that leaves the leader nothing to add) the
+        data cannot say which of the two is at work, and naming the first in list order would
+        be a guess.
+        """
+        if not kept:
+            return []
+        leader, lead = kept[0]
+        rivals = [(n, v) for n, v in kept[1:] if _interval(lead.replicates - v.replicates)[0] <= 0]
+        shared = [n for n, _ in rivals if self.by_name[n].setting == self.by_name[leader].setting]
+        paired = [(n, v) for n, v in rivals if n not in shared]
+        both = (
+            self.evaluate(
+                [
+                    assignment({**self.current, leader: best[leader][1], n: best[n][1]})
+                    for n, _ in paired
+                ]
+            )
+            if paired
+            else []
         )
-        if paired
-        else []
-    )
-    return shared + [
-        n
-        for (n, v), pair in zip(paired, both, strict=True)
-        if not _qualifies(by_name[leader], pair, v, gain, floor)
-    ]
+        return shared + [
+            n
+            for (n, v), pair in zip(paired, both, strict=True)
+            if not _qualifies(self.by_name[leader], pair, v, self.gain, self.floor)
+        ]
+
+    def _refit_step(self, runners: list[str]) -> tuple[dict, dict[str, object] | None, Value]:
+        """Each runner added with every chosen strength refitted (one :func:`calibrate` round).
+
+        A runner is added when it stays in the refitted assignment, that assignment qualifies
+        against the current one (:func:`_qualifies`), and it can be told from every other runner
+        that qualifies (a bootstrap interval of the difference above 0, or
+        :func:`_kernel_apart`); otherwise the runners that cannot be told apart are tied.
+
+        Returns:
+            The path entry, the new strengths (``None``: nothing added) and their value.
+        """
+        fits = []
+        for name in runners:
+            factors = [
+                dataclasses.replace(self.by_name[n], start=s) for n, s in self.current.items()
+            ]
+            factors.append(dataclasses.replace(self.by_name[name], start=self.gains[name][1]))
+            fitted, measured, _ = calibrate(factors, self.evaluate, rounds=1)
+            fits.append((name, dict(fitted), measured))
+        step: dict = {
+            "refit": {n: {k: _shown(v) for k, v in a.items()} for n, a, _ in fits},
+            "measured": {n: v.closure for n, _, v in fits},
+        }
+        kept = sorted(
+            (
+                (n, a, v)
+                for n, a, v in fits
+                if n in a and _qualifies(self.by_name[n], v, self.value, self.gain, self.floor)
+            ),
+            key=lambda f: -f[2].closure,
+        )
+        if not kept:
+            step["added"] = None
+            return step, None, self.value
+        leader, strengths, lead = kept[0]
+        tied = [
+            n
+            for n, _, v in kept[1:]
+            if _interval(lead.replicates - v.replicates)[0] <= 0 and not _kernel_apart(lead, v)
+        ]
+        if tied:
+            step["added"], step["tied"] = None, [leader, *tied]
+            return step, None, self.value
+        step["added"] = leader
+        return step, strengths, lead
 
 
 def _kernel_apart(lead: Value, rival: Value) -> bool:
