@@ -31,6 +31,11 @@ processes): the loaded run slowed 9.9x with spinning threads, 1.4x with sleeping
 2x); quiet batched throughput was unchanged (54 instances, 32.9 vs 32.5 s). On the torch path
 sleeping threads cost a quiet 2-thread run 43 % (2.29 -> 3.28 s; every small op is a parallel
 region), which the default of one thread does not pay.
+
+OpenCV keeps a thread pool of its own (one thread per core), which no variable above reaches:
+:func:`use_process_threads` sets it too. Its optical flow (Farneback, pyramidal Lucas-Kanade)
+is most of the sim-to-real features; beside other busy processes on 2 cores, one candidate
+set's features took 21-24 s with OpenCV's 2 threads and 8.7-9.5 s with one, the same bytes.
 """
 
 from __future__ import annotations
@@ -94,7 +99,7 @@ def limit_openblas_threads(threads: int) -> int:
 
 
 def use_process_threads(threads: int | None = SIM_THREADS, *, name: str = "threads") -> None:
-    """Set this process's torch and OpenBLAS threads and its children's thread-pool variables.
+    """Set this process's torch, OpenBLAS and OpenCV threads and its children's pool variables.
 
     Args:
         threads: Threads per process; ``None`` leaves torch's default (one per core).
@@ -107,6 +112,9 @@ def use_process_threads(threads: int | None = SIM_THREADS, *, name: str = "threa
     for var in THREAD_ENV_VARS:
         os.environ[var] = str(threads)
     limit_openblas_threads(threads)
+    import cv2
+
+    cv2.setNumThreads(threads)
 
 
 @contextlib.contextmanager

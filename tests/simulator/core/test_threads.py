@@ -27,7 +27,11 @@ def test_torch_threads_restores_the_previous_count():
         assert torch.get_num_threads() == 2
 
 
-def test_use_process_threads_sets_torch_and_the_children_env(monkeypatch):
+def test_use_process_threads_sets_torch_opencv_and_the_children_env(monkeypatch):
+    import cv2
+
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(2)
     for var in THREAD_ENV_VARS:
         monkeypatch.setenv(var, "7")  # recorded, so the test's writes are undone afterwards
         monkeypatch.delenv(var)
@@ -35,9 +39,11 @@ def test_use_process_threads_sets_torch_and_the_children_env(monkeypatch):
     use_process_threads(1)
     assert torch.get_num_threads() == 1
     assert all(os.environ[var] == "1" for var in THREAD_ENV_VARS)
+    assert cv2.getNumThreads() == 1
     torch.set_num_threads(2)
     use_process_threads(None)  # null: torch's default stays
     assert torch.get_num_threads() == 2
+    cv2.setNumThreads(previous)
 
 
 @pytest.mark.parametrize(("preset", "expected"), [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
