@@ -226,27 +226,10 @@ def _body_from_x(x: np.ndarray, base: BodyShape) -> tuple[BodyShape, np.ndarray,
     return shape, offset, angles
 
 
-def fit_body(
-    person: np.ndarray,
-    skin: np.ndarray,
-    camera,
-    settings: RecoverySettings,
-    *,
-    base: BodyShape | None = None,
-    on_iteration: Callable[[], None] | None = None,
-) -> BodyFit:
-    """Fit height, placement and the :data:`BODY_SEARCH` angles to the silhouettes.
-
-    The loss sums, over the body pixels outside the person, their distance to it [px], over
-    the skin pixels the body leaves uncovered, their distance to the body [px], and (at a
-    tenth of the weight) counts the person pixels the body leaves empty, all over the
-    person's area in pixels, plus a weak prior (:data:`PRIOR_WEIGHT` per (30 deg)²) on the
-    angles that turn limbs towards or away from the camera, which a frontal silhouette hardly
-    shows.
-    """
-    base = base or BodyShape()
-    lo = np.array([1.45, -0.15, -0.05] + [b[2] for b in BODY_SEARCH])
-    hi = np.array([2.00, 0.15, 0.05] + [b[3] for b in BODY_SEARCH])
+def body_loss(
+    person: np.ndarray, skin: np.ndarray, camera, base: BodyShape
+) -> Callable[[np.ndarray], np.ndarray]:
+    """The loss of :func:`fit_body`: search vectors (N, 3 + len(BODY_SEARCH)) -> (N,)."""
     import cv2
 
     shape_hw = person.shape
@@ -290,6 +273,32 @@ def fit_body(
         if len(bodies) > 256:
             bodies.clear()
         return out
+
+    return loss
+
+
+def fit_body(
+    person: np.ndarray,
+    skin: np.ndarray,
+    camera,
+    settings: RecoverySettings,
+    *,
+    base: BodyShape | None = None,
+    on_iteration: Callable[[], None] | None = None,
+) -> BodyFit:
+    """Fit height, placement and the :data:`BODY_SEARCH` angles to the silhouettes.
+
+    The loss sums, over the body pixels outside the person, their distance to it [px], over
+    the skin pixels the body leaves uncovered, their distance to the body [px], and (at a
+    tenth of the weight) counts the person pixels the body leaves empty, all over the
+    person's area in pixels, plus a weak prior (:data:`PRIOR_WEIGHT` per (30 deg)²) on the
+    angles that turn limbs towards or away from the camera, which a frontal silhouette hardly
+    shows.
+    """
+    base = base or BodyShape()
+    lo = np.array([1.45, -0.15, -0.05] + [b[2] for b in BODY_SEARCH])
+    hi = np.array([2.00, 0.15, 0.05] + [b[3] for b in BODY_SEARCH])
+    loss = body_loss(person, skin, camera, base)
 
     # The swarm starts around an upright A-pose of standard height.
     start = np.array([1.70, 0.0, 0.0] + [0.0] * len(BODY_SEARCH))

@@ -139,9 +139,8 @@ class SceneSetup:
         return list(self.draped)
 
 
-def set_up_scene(scene, settings: RecoverySettings, edge_length: float, log) -> SceneSetup:
-    """Drape and render one scene and fit the body to its image."""
-    start = time.perf_counter()
+def stage_scene(scene, edge_length: float) -> dict:
+    """Drape and render one scene: body, camera, drapes, image, masks, truth pose, occlusion."""
     body = Mannequin.build()
     camera = scene_camera()
     draped = drape_scene(scene, body, edge_length)
@@ -157,28 +156,32 @@ def set_up_scene(scene, settings: RecoverySettings, edge_length: float, log) -> 
     )
     truth_pose = Pose(scene.pose_angles())
     occluded = occluded_joints(truth_pose, body, camera, masks)
+    return {
+        "body": body,
+        "camera": camera,
+        "draped": draped,
+        "caps": caps,
+        "image": image,
+        "person": person,
+        "masks": masks,
+        "truth_pose": truth_pose,
+        "occluded": occluded,
+    }
+
+
+def set_up_scene(scene, settings: RecoverySettings, edge_length: float, log) -> SceneSetup:
+    """Drape and render one scene and fit the body to its image."""
+    start = time.perf_counter()
+    staged = stage_scene(scene, edge_length)
+    image, person = staged["image"], staged["person"]
     tick = time.perf_counter()
-    fit = fit_body(person, skin_mask(image, person), camera, settings)
+    fit = fit_body(person, skin_mask(image, person), staged["camera"], settings)
     body_seconds = time.perf_counter() - tick
     log(
         f"{scene.name}: scene {tick - start:.0f} s, body fit {body_seconds:.0f} s, "
         f"loss {fit.loss:.3f}"
     )
-    return SceneSetup(
-        scene,
-        body,
-        camera,
-        draped,
-        caps,
-        image,
-        person,
-        masks,
-        truth_pose,
-        occluded,
-        fit,
-        body_seconds,
-        start,
-    )
+    return SceneSetup(scene=scene, **staged, fit=fit, body_seconds=body_seconds, start=start)
 
 
 def recover_one(setup: SceneSetup, k: int, settings: RecoverySettings, log) -> tuple[dict, Pose]:
