@@ -62,23 +62,33 @@ def mesh_mask(pixels: np.ndarray, tri: np.ndarray, shape: tuple[int, int]) -> np
 
 
 def capsule_mask(camera, capsules: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Projected body primitives ``[p0, p1, r]`` (C, 7) as a bool mask (H, W)."""
-    import cv2
+    """Projected body primitives ``[p0, p1, r]`` (C, 7) as a bool mask (H, W).
 
+    A pixel is in when its centre lies within the projected radius of the projected segment,
+    as the renderer's coverage decides (a thick-line raster grows every limb by about a pixel,
+    which biases a fit against a rendered silhouette).
+    """
     ends = np.concatenate([capsules[:, :3], capsules[:, 3:6]])
     px, depth = camera.project(ends)
     focal = 0.5 * camera.height / np.tan(np.radians(camera.yfov_deg) / 2)
     count = len(capsules)
     radius = capsules[:, 6] * focal / np.maximum(0.5 * (depth[:count] + depth[count:]), 1e-6)
-    mask = np.zeros(shape, np.uint8)
+    a, b = px[:count], px[count:]
+    lo = np.floor(np.minimum(a, b) - radius[:, None]).astype(np.int64).clip(0, None)
+    hi = np.ceil(np.maximum(a, b) + radius[:, None]).astype(np.int64) + 1
+    mask = np.zeros(shape, bool)
     for c in range(count):
-        a = tuple(np.round(px[c] * 16).astype(np.int64))
-        b = tuple(np.round(px[count + c] * 16).astype(np.int64))
-        r = max(round(float(radius[c])), 1)
-        cv2.line(mask, a, b, 1, thickness=2 * r + 1, lineType=cv2.LINE_8, shift=4)
-        cv2.circle(mask, a, r * 16, 1, -1, lineType=cv2.LINE_8, shift=4)
-        cv2.circle(mask, b, r * 16, 1, -1, lineType=cv2.LINE_8, shift=4)
-    return mask.astype(bool)
+        x0, y0 = lo[c]
+        x1, y1 = min(hi[c, 0], shape[1]), min(hi[c, 1], shape[0])
+        if x1 <= x0 or y1 <= y0:
+            continue
+        xs = np.arange(x0, x1) + 0.5 - a[c, 0]
+        ys = np.arange(y0, y1) + 0.5 - a[c, 1]
+        d = b[c] - a[c]
+        t = np.clip((xs[None] * d[0] + ys[:, None] * d[1]) / max(float(d @ d), 1e-12), 0, 1)
+        dx, dy = xs[None] - t * d[0], ys[:, None] - t * d[1]
+        mask[y0:y1, x0:x1] |= dx * dx + dy * dy <= radius[c] ** 2
+    return mask
 
 
 def _outline_points(mask: np.ndarray) -> np.ndarray:
