@@ -107,7 +107,7 @@ BODY_SEARCH: tuple[tuple[str, int, float, float], ...] = (
 OUTER_GARMENTS = frozenset({"tshirt"})
 """Garments worn over the others (the rest are inner layers)."""
 
-PRIOR_WEIGHT = 0.01
+PRIOR_WEIGHT = 0.03
 """Weight of the body fit's prior on out-of-plane angles, per (30 deg)²."""
 
 GARMENT_PRIMITIVES = {
@@ -227,12 +227,21 @@ def _body_from_x(x: np.ndarray, base: BodyShape) -> tuple[BodyShape, np.ndarray,
 
 
 def body_loss(
-    person: np.ndarray, skin: np.ndarray, camera, base: BodyShape
+    person: np.ndarray,
+    skin: np.ndarray,
+    camera,
+    base: BodyShape,
+    garments: list[np.ndarray] | None = None,
 ) -> Callable[[np.ndarray], np.ndarray]:
     """The loss of :func:`fit_body`: search vectors (N, 3 + len(BODY_SEARCH)) -> (N,)."""
     import cv2
 
     shape_hw = person.shape
+    if garments:
+        # The person outside the garments is bare body: the body must cover all of it, and
+        # under the garments it may lie anywhere (clothes are wider than the body).
+        skin = person & ~np.logical_or.reduce([np.asarray(g, bool) for g in garments])
+    empty_weight = 0.0 if garments else 0.1
     area = max(np.count_nonzero(person), 1)
     out_of_plane = np.array(
         [
@@ -266,10 +275,10 @@ def body_loss(
             if missed.any():
                 to_body = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
                 uncovered = float(to_body[missed].sum())
-            empty = np.count_nonzero(person & ~mask)
+            empty = empty_weight * np.count_nonzero(person & ~mask)
             # Angles the frontal view hardly shows are held near a standing pose.
             prior = float(((x[3:] * out_of_plane) ** 2).sum())
-            out[i] = (outside + uncovered + 0.1 * empty) / area + PRIOR_WEIGHT * prior
+            out[i] = (outside + uncovered + empty) / area + PRIOR_WEIGHT * prior
         if len(bodies) > 256:
             bodies.clear()
         return out
@@ -284,21 +293,24 @@ def fit_body(
     settings: RecoverySettings,
     *,
     base: BodyShape | None = None,
+    garments: list[np.ndarray] | None = None,
     on_iteration: Callable[[], None] | None = None,
 ) -> BodyFit:
     """Fit height, placement and the :data:`BODY_SEARCH` angles to the silhouettes.
 
-    The loss sums, over the body pixels outside the person, their distance to it [px], over
-    the skin pixels the body leaves uncovered, their distance to the body [px], and (at a
-    tenth of the weight) counts the person pixels the body leaves empty, all over the
-    person's area in pixels, plus a weak prior (:data:`PRIOR_WEIGHT` per (30 deg)²) on the
+    The loss sums, over the body pixels outside the person, their distance to it [px], and
+    over the bare pixels the body leaves uncovered, their distance to the body [px], all over
+    the person's area in pixels, plus a weak prior (:data:`PRIOR_WEIGHT` per (30 deg)²) on the
     angles that turn limbs towards or away from the camera, which a frontal silhouette hardly
-    shows.
+    shows. The bare pixels are the person outside the ``garments`` masks when they are given
+    (under a garment the body may lie anywhere inside the person), else the ``skin`` mask, and
+    then a tenth of a unit per person pixel the body leaves empty is added. A global swarm,
+    swarms per limb and a compass search minimise it.
     """
     base = base or BodyShape()
     lo = np.array([1.45, -0.15, -0.05] + [b[2] for b in BODY_SEARCH])
     hi = np.array([2.00, 0.15, 0.05] + [b[3] for b in BODY_SEARCH])
-    loss = body_loss(person, skin, camera, base)
+    loss = body_loss(person, skin, camera, base, garments)
 
     # The swarm starts around an upright A-pose of standard height.
     start = np.array([1.70, 0.0, 0.0] + [0.0] * len(BODY_SEARCH))
@@ -346,8 +358,35 @@ def fit_body(
             if on_iteration is not None:
                 for _ in range(per_group):
                     on_iteration()
+    # The swarms stop within a few degrees; a compass search walks the rest of the way down.
+    step = np.array([0.01, 0.005, 0.005] + [2.0] * len(BODY_SEARCH))
+    best_x, best_f = _compass(loss, best_x, best_f, lo, hi, step, levels=5)
     shape, offset, angles = _body_from_x(best_x, base)
     return BodyFit(shape, Pose(angles), offset, best_f)
+
+
+def _compass(loss, x, f, lo, hi, step, *, levels: int, max_passes: int = 6):
+    """Coordinate pattern search from ``x`` with loss ``f``.
+
+    Per dimension try ``±step`` and keep an improvement; halve the steps when a pass finds
+    none; ``levels`` step sizes in all.
+    """
+    x = np.asarray(x, np.float64).copy()
+    for _ in range(levels):
+        for _ in range(max_passes):
+            improved = False
+            for d in range(len(x)):
+                cand = np.repeat(x[None], 2, 0)
+                cand[0, d] = min(x[d] + step[d], hi[d])
+                cand[1, d] = max(x[d] - step[d], lo[d])
+                values = loss(cand)
+                k = int(np.argmin(values))
+                if values[k] < f:
+                    x, f, improved = cand[k], float(values[k]), True
+            if not improved:
+                break
+        step = step / 2
+    return x, f
 
 
 # ---------------------------------------------------------------------------------- light

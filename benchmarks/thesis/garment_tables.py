@@ -175,7 +175,9 @@ def set_up_scene(scene, settings: RecoverySettings, edge_length: float, log) -> 
     staged = stage_scene(scene, edge_length)
     image, person = staged["image"], staged["person"]
     tick = time.perf_counter()
-    fit = fit_body(person, skin_mask(image, person), staged["camera"], settings)
+    fit = fit_body(
+        person, skin_mask(image, person), staged["camera"], settings, garments=staged["masks"]
+    )
     body_seconds = time.perf_counter() - tick
     log(
         f"{scene.name}: scene {tick - start:.0f} s, body fit {body_seconds:.0f} s, "
