@@ -59,6 +59,7 @@ COMMANDS = [
     "benchmarks.thesis.table71",
     "benchmarks.thesis.tissue_tables",
     "benchmarks.thesis.garment_tables",
+    "benchmarks.thesis.garment_pose",
     "benchmarks.thesis.table41",
 ]
 
