@@ -10,8 +10,9 @@
    simultaneous effects, so the time includes the joint calibration of a multi-effect gap
    (the case the 30-minute target is set for); by default the kind is drawn from the seed.
 3. Runs the diagnosis with every candidate of the library on a fresh cache and reports its
-   minutes split into reading the real set, generating the simulated sets (simulation +
-   rendering), features and fitting, then runs it again to show what the cache saves.
+   minutes split into reading the real set, generating the simulated sets (and, of the
+   candidate sets' generation, the simulation and the rendering with its image effects),
+   features and fitting, then runs it again to show what the cache saves.
 
 Without ``--run`` the network is the thesis CNN+LSTM with random weights (its layers cost the
 same; its verdicts mean less). The last line is JSON with ``diagnose_minutes``,

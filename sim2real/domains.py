@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
+import time
 from pathlib import Path
 
 import numpy as np
@@ -144,6 +145,7 @@ def simulated_clips(
     clip_len: int | None = None,
     clip_stride: int | None = None,
     render_cache=None,
+    timing: dict[str, float] | None = None,
 ) -> ClipSet:
     """Simulate (or load cached meshes) and render every simulation of ``spec`` as clips.
 
@@ -159,6 +161,9 @@ def simulated_clips(
             sets that differ only in those effects (noise, compression, white balance,
             defocus, vignetting and their strengths) share one render. Not with a frame-rate
             change, which sets how many frames are simulated.
+        timing: Where to add the seconds spent simulating (or reading the mesh cache) and
+            rendering (image effects included), as ``simulate`` and ``render``; ``None``:
+            not timed.
 
     Returns:
         The clips; groups are simulation ids.
@@ -172,14 +177,18 @@ def simulated_clips(
         base = dataclasses.replace(spec, visual=spec.visual.before_image_effects())
     names = ("frames", "coverage", "groups", "class_id", "k", "q")
     rows: dict[str, list] = {name: [] for name in names}
+    seconds = {"simulate": 0.0, "render": 0.0}
     for unit in plan_units(spec):
         p, k, q = prior_materials(spec, unit)
+        tick = time.perf_counter()
         seq = simulate_unit(spec, unit, mesh_cache, multipliers=(p, k, q))  # cached by physics
+        seconds["simulate"] += time.perf_counter() - tick
         # key and materials: a visual or look candidate re-renders the nominal meshes
         q = q * spec.physics.density_factors([s.seed for s in unit.sims])  # as simulated
         capsules = seq.capsules
         start, stop = spec.lead_in_frames, spec.frames_per_sim
         for b, sim in enumerate(unit.sims):
+            tick = time.perf_counter()
             rng = np.random.default_rng([sim.seed, _VIDEO_STREAM, 0])
             if base is None:
                 frames, coverage = render_frames(
@@ -192,6 +201,7 @@ def simulated_clips(
                 # render_clip draws its effect streams from the clip's Generator once, first:
                 # a fresh Generator of the same seed gives the image effects the same streams.
                 frames, coverage = apply_image_effects(frames, spec.visual, rng, coverage)
+            seconds["render"] += time.perf_counter() - tick
             for first in clip_starts(len(frames), clip_len, clip_stride):
                 rows["frames"].append(frames[first : first + clip_len])
                 rows["coverage"].append(coverage[first : first + clip_len])
@@ -199,6 +209,9 @@ def simulated_clips(
                 rows["class_id"].append(_nearest_class(spec, p[b], k[b], q[b]))
                 rows["k"].append(k[b])
                 rows["q"].append(q[b])
+    if timing is not None:
+        for name, value in seconds.items():
+            timing[name] = timing.get(name, 0.0) + value
     if not rows["frames"]:
         raise ValueError(
             f"the simulated videos ({spec.frames_per_sim - spec.lead_in_frames} frames) are "

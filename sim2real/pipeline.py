@@ -291,18 +291,21 @@ def build_set(job: SetJob, context: SetContext, threads: int = 1) -> tuple[str, 
     if path.is_file():
         return str(path), {}
     start = time.perf_counter()
+    parts: dict[str, float] = {}
     clips = simulated_clips(
         job.spec,
         context.mesh_cache,
         clip_len=context.clip_len,
         clip_stride=context.clip_stride,
         render_cache=Path(context.cache_dir) / "renders",
+        timing=parts,
     )
     middle = time.perf_counter()
     features = ladder_features(clips, context.box, _net(context), device=context.device)
     features.save(path)
     return str(path), {
         "generate": middle - start,
+        **{f"generate: {name}": value for name, value in parts.items()},
         "features": time.perf_counter() - middle,
     }
 

@@ -83,6 +83,14 @@ def test_without_image_effects_or_with_a_frame_rate_change_a_set_renders_whole(n
     assert not renders.exists()
 
 
+def test_simulated_clips_adds_its_simulation_and_render_seconds_to_a_timing(nominal, tmp_path):
+    timing = {"simulate": 1.0}
+    clips = simulated_clips(nominal, tmp_path, clip_len=4, clip_stride=4, timing=timing)
+    _same(clips, simulated_clips(nominal, tmp_path, clip_len=4, clip_stride=4))
+    assert set(timing) == {"simulate", "render"}
+    assert timing["simulate"] > 1.0 and timing["render"] > 0.0
+
+
 DENSE = MaterialSet("dense", BASIS_MATERIAL, STRETCH_MULTIPLIERS, BEND_MULTIPLIERS, (0.4, 0.7, 1.2))
 
 
