@@ -31,15 +31,15 @@ def staged_scene(scene, edge_length: float, work: Path) -> dict:
     """Image, person, garment masks, truth pose and occlusion of a scene (cached in ``work``)."""
     path = work / f"{scene.name}_{edge_length:g}.npz"
     if path.exists():
-        data = np.load(path)
-        garments = [str(g) for g in data["garments"]]
-        return {
-            "image": data["image"],
-            "person": data["person"],
-            "masks": dict(zip(garments, data["masks"], strict=True)),
-            "truth": Pose(data["truth"]),
-            "occluded": dict(zip(JOINTS, data["occluded"].tolist(), strict=True)),
-        }
+        with np.load(path) as data:
+            garments = [str(g) for g in data["garments"]]
+            return {
+                "image": data["image"],
+                "person": data["person"],
+                "masks": dict(zip(garments, data["masks"], strict=True)),
+                "truth": Pose(data["truth"]),
+                "occluded": dict(zip(JOINTS, data["occluded"].tolist(), strict=True)),
+            }
     staged = stage_scene(scene, edge_length)
     garments = list(staged["draped"])
     work.mkdir(parents=True, exist_ok=True)
