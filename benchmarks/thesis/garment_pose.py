@@ -24,7 +24,7 @@ from apps.garment.scenes import SCENES, scene_camera
 from simulator.garment.body import JOINTS, Pose, joint_angle_errors
 from simulator.threads import use_process_threads
 
-from .garment_tables import stage_scene
+from .garment_tables import scenes_by_name, stage_scene
 
 
 def staged_scene(scene, edge_length: float, work: Path) -> dict:
@@ -74,11 +74,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     use_process_threads(1, name="threads")
     settings = RecoverySettings(seed=args.seed)
-    by_name = {s.name: s for s in SCENES}
-    names = args.scenes or list(by_name)
-    unknown = [n for n in names if n not in by_name]
-    if unknown:
-        parser.error(f"unknown scenes {unknown}; allowed: {list(by_name)}")
+    names = args.scenes or [s.name for s in SCENES]
+    by_name = scenes_by_name(parser, names)
     camera = scene_camera()
     rows = []
     for name in names:

@@ -517,6 +517,15 @@ def markdown_table(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def scenes_by_name(parser: argparse.ArgumentParser, names: list[str]) -> dict:
+    """Every scene of :data:`SCENES` by name; an unknown name in ``names`` ends the command."""
+    by_name = {s.name: s for s in SCENES}
+    unknown = [n for n in names if n not in by_name]
+    if unknown:
+        parser.error(f"unknown scenes {unknown}; allowed: {list(by_name)}")
+    return by_name
+
+
 def main(argv: list[str] | None = None) -> dict:
     """Run the scenes, print the tables, write the JSON; returns the summary."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -577,10 +586,7 @@ def main(argv: list[str] | None = None) -> dict:
         settings = dataclasses.replace(settings, edge_length=args.edge_length)
     if args.swarm is not None:
         settings = dataclasses.replace(settings, swarm_size=args.swarm)
-    by_name = {s.name: s for s in SCENES}
-    unknown = [n for n in names if n not in by_name]
-    if unknown:
-        parser.error(f"unknown scenes {unknown}; allowed: {list(by_name)}")
+    by_name = scenes_by_name(parser, names)
     out = args.out
     if out is None and not args.quick:
         out = Path("docs/results/garment_tables.json")
