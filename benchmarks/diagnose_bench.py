@@ -1,7 +1,8 @@
 """Time of one sim-to-real diagnosis at ``budget=quick`` on a 90-video real set at Unif-1.
 
 ``python -m benchmarks.diagnose_bench [--videos 90] [--jobs 2] [--kind multi] [--run RUN
-[--data-dir DATA]] [--work DIR]``
+[--data-dir DATA]] [--work DIR]
+[--budget-set KEY=VALUE ...]``
 
 1. Builds the training data's spec exactly as ``python -m datasets.generate preset=full
    level=1`` would (only its ``spec.json`` is needed: the diagnosis never reads the shards).
@@ -71,13 +72,25 @@ def main() -> None:
         "--data-dir", help="the run's training data folder (default: the full level-1 spec)"
     )
     parser.add_argument("--work", help="work folder (default: a temporary one)")
+    parser.add_argument(
+        "--budget-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a setting on top of configs/budget/quick.yaml (repeatable), e.g. refine=visual",
+    )
     args = parser.parse_args()
+    from sim2real.study.validate import load_budget
+
+    try:
+        budget = load_budget("quick", args.budget_set)
+    except ValueError as err:
+        parser.error(str(err))
     use_process_threads(1)
     from datasets.manifest import write_json
     from datasets.runs import dataset_spec
     from sim2real.pipeline import DiagnosisRequest, run_diagnosis
     from sim2real.study.seal import seal_set
-    from sim2real.study.validate import load_budget
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.work or tmp)
@@ -101,7 +114,7 @@ def main() -> None:
             data_dir=data,
             cache_dir=work / "cache",
             mesh_cache=work / "meshes",
-            budget=load_budget("quick"),
+            budget=budget,
             candidates="all",
             n_jobs=args.jobs,
         )
@@ -130,6 +143,7 @@ def main() -> None:
                     "jobs": args.jobs,
                     "kind": args.kind,
                     "seed": args.seed,
+                    "budget": request.budget.name,
                     "top": result.ranking.top,
                     "explained": result.ranking.explained,
                 }

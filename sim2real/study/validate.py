@@ -28,6 +28,7 @@ import argparse
 import dataclasses
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -460,14 +461,32 @@ def budget_names() -> list[str]:
     return sorted(p.stem for p in BUDGETS.glob("*.yaml"))
 
 
-def load_budget(name: str) -> Budget:
-    """The :class:`~sim2real.pipeline.Budget` of ``configs/budget/NAME.yaml``."""
+def load_budget(name: str, overrides: Sequence[str] = ()) -> Budget:
+    """The :class:`~sim2real.pipeline.Budget` of ``configs/budget/NAME.yaml``.
+
+    ``overrides`` are ``key=value`` settings on top (``refine=visual``, YAML values), for
+    checking a rule change on development sets without editing the config; the budget's
+    name then lists them, so every table says what it ran at.
+    """
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
     if name not in budget_names():
         raise ValueError(f"--budget must be one of {', '.join(budget_names())}, got {name!r}")
-    return instantiate(OmegaConf.load(BUDGETS / f"{name}.yaml"))
+    budget = instantiate(OmegaConf.load(BUDGETS / f"{name}.yaml"))
+    if not overrides:
+        return budget
+    settings = sorted(f.name for f in dataclasses.fields(Budget) if f.name != "name")
+    changes = {"name": f"{name}+{','.join(overrides)}"}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or key not in settings or not value:
+            raise ValueError(
+                f"--budget-set must be KEY=VALUE with KEY one of {', '.join(settings)}, "
+                f"got {item!r}"
+            )
+        changes[key] = OmegaConf.to_container(OmegaConf.from_dotlist([item]))[key]
+    return dataclasses.replace(budget, **changes)
 
 
 def _minutes(result: Diagnosis) -> float | None:
@@ -522,6 +541,14 @@ def main(argv: list[str] | None = None) -> None:
         "--budget",
         default="quick",
         help=f"budget of every diagnosis: one of {', '.join(budget_names())} (configs/budget/)",
+    )
+    parser.add_argument(
+        "--budget-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a budget setting on top of --budget (repeatable), e.g. refine=visual: a rule "
+        "change checked on development sets; the table's budget name lists it",
     )
     parser.add_argument(
         "--finished-only",
@@ -579,7 +606,7 @@ def main(argv: list[str] | None = None) -> None:
     args.finished_only = args.finished_only or args.rescore
     out = check_output_dir(args.out, "--out")
     try:
-        budget = load_budget(args.budget)
+        budget = load_budget(args.budget, args.budget_set)
         base, _ = load_run(args.run, args.data_dir)
     except ValueError as err:
         raise InputError(str(err)) from None

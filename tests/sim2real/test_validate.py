@@ -212,6 +212,24 @@ def test_validation_reads_the_budget_configs_that_the_diagnosis_reads():
         load_budget("fast")
 
 
+def test_budget_settings_on_top_of_a_config_change_only_those_and_are_named():
+    quick = load_budget("quick")
+    changed = load_budget("quick", ["refine=visual", "shapley_top=2", "class_grid=[2,2]"])
+    assert (changed.refine, changed.shapley_top, changed.class_grid) == ("visual", 2, (2, 2))
+    assert changed.name == "quick+refine=visual,shapley_top=2,class_grid=[2,2]"
+    untouched = {"name", "refine", "shapley_top", "class_grid"}
+    for field in dataclasses.fields(quick):
+        if field.name not in untouched:
+            assert getattr(changed, field.name) == getattr(quick, field.name), field.name
+    assert load_budget("quick", []) == quick
+    with pytest.raises(ValueError, match=r"--budget-set must be KEY=VALUE with KEY one of .*refi"):
+        load_budget("quick", ["speed=11"])
+    with pytest.raises(ValueError, match="--budget-set"):
+        load_budget("quick", ["refine"])
+    with pytest.raises(ValueError, match=r"budget\.refine must be none, visual or all"):
+        load_budget("quick", ["refine=some"])
+
+
 def test_stability_sets_are_spread_over_the_plan_so_every_kind_is_measured():
     from sim2real.study.validate import set_plan
 
