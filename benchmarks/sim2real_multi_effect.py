@@ -1,10 +1,12 @@
 """The multi-effect validation's figures against the targets of the joint diagnosis.
 
 Reads a scored validation round of ``multi`` and ``twin`` sets (``validation.json`` written by
-``python -m sim2real.study.validate --kinds multi:24,twin:20 ...``) and, optionally, the
-closed loop on independent-engine footage (a diagnosis folder after ``python -m
-sim2real.shrink``: its ``report.json`` holds every score's correlations before and after
-retraining). Writes ``sim2real_multi_effect.json`` and a Markdown table beside it.
+``python -m sim2real.study.validate --kinds multi:24,twin:20 ...``, or the round's committed
+ledger, ``reports/sim2real/rounds/roundNN/rows_*.jsonl``) and, optionally, the closed loop on
+independent-engine footage (a diagnosis folder after ``python -m sim2real.shrink``: its
+``report.json`` holds every score's correlations before and after retraining; or an earlier
+results file whose loop figures are carried over). Writes ``sim2real_multi_effect.json`` and
+a Markdown table beside it.
 
 Usage: ``python -m benchmarks.sim2real_multi_effect --validation <validate --out folder>
 [--loop <diagnosis folder after shrink>] [--speed <diagnose_bench output>] [--out
@@ -58,21 +60,75 @@ TARGETS = {
 else the longest diagnosis of the round)."""
 
 
+def _ledger_rows(folder: Path) -> list[dict] | None:
+    """The rows of a round's committed ledger, or ``None`` where the folder has none.
+
+    The ledger is ``rows_*.jsonl``, one scored set a line; a seed met twice keeps its last row.
+    """
+    paths = sorted(folder.glob("rows_*.jsonl"))
+    if not paths:
+        return None
+    rows: dict[int, dict] = {}
+    for path in paths:
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                row = json.loads(line)
+                rows[int(row["seed"])] = row
+            except (ValueError, KeyError, TypeError) as err:
+                raise InputError(
+                    f"--validation: {path} line {number} is not a scored set ({err})"
+                ) from None
+    return [rows[seed] for seed in sorted(rows)]
+
+
 def _rows(folder: Path) -> list[dict]:
     path = folder / "validation.json"
-    if not path.is_file():
-        raise InputError(
-            f"--validation: {folder} holds no validation.json; give the --out "
-            "folder of a finished sim2real.study.validate run"
-        )
-    try:
-        rows = json.loads(path.read_text())["sets"]
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError(f"--validation: {path} is not a validation.json ({err})") from None
+    if path.is_file():
+        try:
+            rows = json.loads(path.read_text())["sets"]
+        except (ValueError, KeyError, TypeError) as err:
+            raise InputError(f"--validation: {path} is not a validation.json ({err})") from None
+    else:
+        rows = _ledger_rows(folder)
+        if rows is None:
+            raise InputError(
+                f"--validation: {folder} holds no validation.json and no rows_*.jsonl; give "
+                "the --out folder of a finished sim2real.study.validate run or a round's "
+                "ledger folder (reports/sim2real/rounds/roundNN)"
+            )
+        path = folder
     kept = [r for r in rows if r.get("kind") in ("multi", "twin")]
     if not kept:
         raise InputError(f"--validation: {path} has no multi or twin sets")
     return kept
+
+
+def _loop(path: Path) -> dict | None:
+    """The closed loop's figures, from a diagnosis folder or an earlier results file.
+
+    A diagnosis folder after shrink gives them from its ``report.json``; an earlier
+    ``sim2real_multi_effect.json`` carries its ``independent_engine`` block over.
+    """
+    if path.is_file() and path.suffix == ".json":
+        try:
+            loop = json.loads(path.read_text())["independent_engine"]
+        except (ValueError, KeyError, TypeError) as err:
+            raise InputError(
+                f"--loop: {path} is not a sim2real_multi_effect.json with an "
+                f"independent_engine block ({err})"
+            ) from None
+        if not isinstance(loop, dict) or not loop:
+            raise InputError(f"--loop: {path} has no independent-engine figures")
+        return loop
+    report = path / "report.json"
+    if not report.is_file():
+        raise InputError(
+            f"--loop: {path} holds no report.json (give a diagnosis folder after shrink or an "
+            "earlier sim2real_multi_effect.json)"
+        )
+    return loop_figures(json.loads(report.read_text()))
 
 
 def _gain(after, before):
@@ -278,13 +334,15 @@ def main(argv: list[str] | None = None) -> dict:
         "--validation",
         type=Path,
         required=True,
-        help="the --out folder of a scored multi/twin validation round",
+        help="the --out folder of a scored multi/twin validation round, or a round's "
+        "committed ledger folder (rows_*.jsonl)",
     )
     parser.add_argument(
         "--loop",
         type=Path,
         default=None,
-        help="a diagnosis folder of independent-engine footage after shrink",
+        help="a diagnosis folder of independent-engine footage after shrink, or an earlier "
+        "sim2real_multi_effect.json whose loop figures are carried over",
     )
     parser.add_argument(
         "--speed",
@@ -295,12 +353,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results")
     args = parser.parse_args(argv)
     rows = _rows(args.validation)
-    loop = None
-    if args.loop is not None:
-        path = args.loop / "report.json"
-        if not path.is_file():
-            raise InputError(f"--loop: {args.loop} holds no report.json")
-        loop = loop_figures(json.loads(path.read_text()))
+    loop = None if args.loop is None else _loop(args.loop)
     speed = None if args.speed is None else speed_figures(args.speed)
     result = figures(rows, loop, speed)
     given = sys.argv[1:] if argv is None else argv

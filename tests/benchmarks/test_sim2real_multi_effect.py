@@ -158,3 +158,38 @@ def test_a_cold_diagnosis_on_a_quiet_machine_is_judged_against_the_time_target(t
         main(["--validation", str(round_), "--speed", str(bench), "--out", str(out)])
     assert stop.value.code == 2
     assert capsys.readouterr().err.startswith("error: --speed:")
+
+
+def test_a_rounds_committed_ledger_and_an_earlier_loop_give_the_same_figures(tmp_path, capsys):
+    # The ledger: multi and twin rows in their own files, one seed met twice (the last wins).
+    ledger = tmp_path / "round"
+    ledger.mkdir()
+    multi = [r for r in ROWS if r["kind"] == "multi"]
+    stale = {**multi[0], "factor_f1": 0.0}
+    (ledger / "rows_multi.jsonl").write_text("".join(json.dumps(r) + "\n" for r in [stale, *multi]))
+    (ledger / "rows_twin.jsonl").write_text(
+        "".join(json.dumps(r) + "\n" for r in ROWS if r["kind"] == "twin") + "\n"
+    )
+    loop_dir = tmp_path / "diagnosis"
+    loop_dir.mkdir()
+    (loop_dir / "report.json").write_text(json.dumps(_loop(0.25, 0.55)))
+    first = main(
+        ["--validation", str(ledger), "--loop", str(loop_dir), "--out", str(tmp_path / "a")]
+    )
+    assert first["seeds"] == [1, 2, 3, 4] and first["factor_f1"] == pytest.approx(0.75)
+    earlier = tmp_path / "a" / "sim2real_multi_effect.json"
+    again = main(
+        ["--validation", str(ledger), "--loop", str(earlier), "--out", str(tmp_path / "b")]
+    )
+    assert again["independent_engine"] == first["independent_engine"]
+    assert again["targets"] == first["targets"]
+    (loop_dir / "validation.json").write_text(json.dumps({"sets": ROWS}))
+    (ledger / "rows_twin.jsonl").write_text("not json\n")
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["--validation", str(ledger), "--out", str(tmp_path / "c")])
+    assert "rows_twin.jsonl line 1 is not a scored set" in capsys.readouterr().err
+    (tmp_path / "other.json").write_text("{}")
+    with pytest.raises(SystemExit):
+        main(["--validation", str(loop_dir), "--loop", str(tmp_path / "other.json")])
+    assert "error: --loop:" in capsys.readouterr().err
