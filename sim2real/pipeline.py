@@ -608,6 +608,7 @@ def run_diagnosis(request: DiagnosisRequest, out_dir: str | Path) -> Diagnosis:
             seed=seed,
             sim_seed=r.sim_seed,
             device=device,
+            checkpoint_digest=context.checkpoint_digest,
         ),
         rungs={n: g.to_json() for n, g in gaps.items()},
         detection_rungs={n: g.to_json() for n, g in detection.items()},

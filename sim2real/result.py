@@ -75,6 +75,9 @@ class DiagnosisInputs(Section):
     seed: int
     sim_seed: int
     device: str
+    checkpoint_digest: str | None = None
+    """sha256 of the checkpoint's bytes (first 16 hex digits): which trained model answered,
+    so rows of one validation round can be checked to share it (``None`` in older reports)."""
     extra: dict = dataclasses.field(default_factory=dict)
     section: ClassVar[str] = "inputs"
 

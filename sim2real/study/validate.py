@@ -110,6 +110,7 @@ def score_set(result: Diagnosis, answer: dict, attribution: dict | None = None) 
     }
     row["detected"] = bool(result.scored_rungs)
     row["budget"] = result.inputs.budget
+    row["model"] = result.inputs.checkpoint_digest
     if answer["kind"] == "open":
         fabric = {e["name"] for e in answer_effects(answer) if e["library"]}  # density spread
         row["false_attribution"] = bool(ranking.explained) and not (

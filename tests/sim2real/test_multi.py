@@ -106,6 +106,11 @@ def test_factor_scores_and_stage_shares_against_the_truth():
         "stage_shares": {"physics": 0.6, "camera": 0.3},
     }
     row = score_set(result, answer, truth)
+    assert row["model"] is None  # a report without the model's digest (older reports)
+    digest = dataclasses.replace(
+        result, inputs=dataclasses.replace(result.inputs, checkpoint_digest="0123abcd")
+    )
+    assert score_set(digest, answer, truth)["model"] == "0123abcd"
     assert row["factor_precision"] == pytest.approx(2 / 3)
     assert row["factor_recall"] == pytest.approx(2 / 3)
     assert row["factor_f1"] == pytest.approx(2 / 3)

@@ -239,6 +239,12 @@ def test_planted_effect_is_ranked_first_and_the_report_is_written(world, tmp_pat
     assert result.ranking.top == "visual.sensor_noise"
     assert result.ranking.explained
     assert "pixel" in result.location.significant
+    # the report names the model that answered by its bytes, so a round's rows can be checked
+    checkpoint = Path(result.inputs.checkpoint).read_bytes()
+    assert result.inputs.checkpoint_digest == hashlib.sha256(checkpoint).hexdigest()[:16]
+    assert json.loads((out / "report.json").read_text())["inputs"]["checkpoint_digest"] == (
+        result.inputs.checkpoint_digest
+    )
     noise = result.candidates["visual.sensor_noise"]
     assert noise["best_strength"] >= 2.0
     assert len(noise["strengths"]) > 3  # the grid was refined around the best strength
