@@ -105,7 +105,7 @@ def _rows(folder: Path) -> list[dict]:
     return kept
 
 
-def _loop(path: Path) -> dict | None:
+def _loop(path: Path) -> dict:
     """The closed loop's figures, from a diagnosis folder or an earlier results file.
 
     A diagnosis folder after shrink gives them from its ``report.json``; an earlier
