@@ -365,6 +365,20 @@ def select(
     return chosen, assignment(state.current), state.value, state.path
 
 
+@dataclasses.dataclass(frozen=True)
+class _Step:
+    """One forward step of :func:`select`: its path entry and what it measured."""
+
+    entry: dict
+    chosen: str | None
+    """The addition that qualifies and can be told from its rivals; ``None``: a stall."""
+    measured: Value | None
+    best: dict[str, tuple[float, object]]
+    """Each open factor's best screened estimate and the strength it was screened at."""
+    ranked: list[tuple[str, Value]]
+    """The built additions, most closure first."""
+
+
 @dataclasses.dataclass
 class _Selection:
     """The state of :func:`select`: S* so far, its value, the path and the gains measured."""
@@ -391,33 +405,49 @@ class _Selection:
 
     def grow(self) -> bool:
         """One forward step or, after a stall, one refit step; whether a factor was added."""
-        used = {self.by_name[n].setting for n in self.current}
+        step = self._forward(self.current, self.value)
+        if step is None:
+            return False
+        self.path.append(step.entry)
+        if step.chosen is not None:
+            self.current = {**self.current, step.chosen: step.best[step.chosen][1]}
+            self.value = step.measured
+            return True
+        return self._refit()
+
+    def _forward(self, current: dict[str, object], value: Value) -> _Step | None:
+        """Screen every open addition to ``current``, build the shortlist, pick one to add.
+
+        ``None`` when no factor is open; otherwise the step, whose ``chosen`` is ``None``
+        when no addition qualifies against ``value`` or every one that does is tied.
+        """
+        used = {self.by_name[n].setting for n in current}
         open_ = [
             f
             for f in self.factors
-            if f.name not in self.current and f.name not in self.dropped and f.setting not in used
+            if f.name not in current and f.name not in self.dropped and f.setting not in used
         ]
         additions = [(f.name, s) for f in open_ for s in f.options]
         if not additions:
-            return False
-        estimates = self.screen(assignment(self.current), additions)
+            return None
+        estimates = self.screen(assignment(current), additions)
         best: dict[str, tuple[float, object]] = {}
         for (name, strength), estimate in zip(additions, estimates, strict=True):
             if name not in best or estimate > best[name][0]:
                 best[name] = (float(estimate), strength)
         shortlist = _round_robin(best, {f.name: f.stage for f in open_}, self.verify)
-        trials = [assignment({**self.current, n: best[n][1]}) for n in shortlist]
+        trials = [assignment({**current, n: best[n][1]}) for n in shortlist]
         values = self.evaluate(trials)
         for n, v in zip(shortlist, values, strict=True):
-            if n not in self.gains or v.closure - self.value.closure > self.gains[n][0]:
-                self.gains[n] = (v.closure - self.value.closure, best[n][1])
+            if n not in self.gains or v.closure - value.closure > self.gains[n][0]:
+                self.gains[n] = (v.closure - value.closure, best[n][1])
         ranked = sorted(zip(shortlist, values, strict=True), key=lambda nv: -nv[1].closure)
         kept = [
             (n, v)
             for n, v in ranked
-            if _qualifies(self.by_name[n], v, self.value, self.gain, self.floor)
+            if _qualifies(self.by_name[n], v, value, self.gain, self.floor)
         ]
-        step = {
+        entry = {
             "step": len(self.path) + 1,
             "screened": {n: [_shown(best[n][1]), best[n][0]] for n in shortlist},
             "measured": {n: v.closure for n, v in zip(shortlist, values, strict=True)},
@@ -428,28 +458,28 @@ class _Selection:
             if leader in tied:
                 continue
             others = [(n, v) for n, v in kept if n != leader]
-            twins = self._substitutes([(leader, lead), *others], best)
+            twins = self._substitutes(current, [(leader, lead), *others], best)
             if any(_kernel_apart(values_of[n], lead) for n in twins):
                 beaten.append(leader)  # a twin removes clearly more of the kernel distance
                 continue
             apart = [n for n in twins if _kernel_apart(lead, values_of[n])]
             if apart:
-                step.setdefault("kernel_apart", {})[leader] = apart
+                entry.setdefault("kernel_apart", {})[leader] = apart
             twins = [n for n in twins if n not in apart]
             if not twins:
                 chosen, measured = leader, lead
                 break
             tied += [n for n in (leader, *twins) if n not in tied]
-        step["added"] = chosen
+        entry["added"] = chosen
         if tied:
-            step["tied"] = tied
+            entry["tied"] = tied
         if beaten:
-            step["kernel_beaten"] = beaten
-        self.path.append(step)
-        if chosen is not None:
-            self.current[chosen] = best[chosen][1]
-            self.value = measured
-            return True
+            entry["kernel_beaten"] = beaten
+        return _Step(entry, chosen, measured, best, ranked)
+
+    def _refit(self) -> bool:
+        """After a stall: the best runners-up, each with the chosen strengths refitted."""
+        used = {self.by_name[n].setting for n in self.current}
         runners = sorted(
             (
                 n
@@ -497,7 +527,10 @@ class _Selection:
         return True
 
     def _substitutes(
-        self, kept: list[tuple[str, Value]], best: dict[str, tuple[float, object]]
+        self,
+        current: dict[str, object],
+        kept: list[tuple[str, Value]],
+        best: dict[str, tuple[float, object]],
     ) -> list[str]:
         """The qualifying rivals the leader of a step cannot be told from (empty: add it).
 
@@ -516,10 +549,7 @@ class _Selection:
         paired = [(n, v) for n, v in rivals if n not in shared]
         both = (
             self.evaluate(
-                [
-                    assignment({**self.current, leader: best[leader][1], n: best[n][1]})
-                    for n, _ in paired
-                ]
+                [assignment({**current, leader: best[leader][1], n: best[n][1]}) for n, _ in paired]
             )
             if paired
             else []
