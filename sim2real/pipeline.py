@@ -134,6 +134,11 @@ class Budget:
     """When a step of the selection adds nothing, the additions (most gain first) then tried
     with every chosen strength refitted around them (one ascent round each, about
     ``strengths + 1`` sets a factor); 0 = none."""
+    joint_lookahead: int = 0
+    """Most lookahead steps of the selection: after a stall that no refit ends, the best
+    addition that gained anything goes in provisionally and one more step is taken; both are
+    kept when that step adds a factor (:func:`select <sim2real.diagnosis.joint.select>`);
+    0 = none. Costs about ``joint_verify`` sets a lookahead."""
     joint_prune: int = 0
     """Most factors the selection drops from S* when it would stop, each one that no longer
     matters with the later factors in place (it was a stand-in for them), freeing its place;
@@ -161,6 +166,7 @@ class Budget:
         check_int("budget.joint_interval_refine", self.joint_interval_refine, low=0)
         check_int("budget.joint_refit", self.joint_refit, low=0)
         check_int("budget.joint_prune", self.joint_prune, low=0)
+        check_int("budget.joint_lookahead", self.joint_lookahead, low=0)
         for name in ("n_perm", "n_boot"):
             check_int(f"budget.{name}", getattr(self, name), low=19)
 
@@ -1056,6 +1062,7 @@ def _joint_fit(
         interval_refine=budget.joint_interval_refine,
         refit=budget.joint_refit,
         prune=budget.joint_prune,
+        lookahead=budget.joint_lookahead,
     )
     return dataclasses.replace(fit, kernel_gap=bool(reference.kernel_rungs))
 

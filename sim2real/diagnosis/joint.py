@@ -318,6 +318,7 @@ def select(
     floor: float = 0.0,
     refit: int = 0,
     prune: int = 0,
+    lookahead: int = 0,
 ) -> tuple[list[Factor], Assignment, Value, list[dict]]:
     """Greedy forward selection of the factors of S*, each chosen with the others in place.
 
@@ -340,13 +341,21 @@ def select(
     in for (an over-strong codec mimicking a finer texture) adds nothing on top of it; with
     that strength relaxed it can.
 
-    Where the selection would stop (``top`` factors chosen, or a stall that no refit ends) and
-    ``prune`` > 0, a prune step (:meth:`_Selection.prune`) drops the chosen factor that
-    matters least with the later ones in place, if it no longer matters (resetting it alone
-    gives back less than ``gain``, the rule :func:`attribute` keeps a factor by), and the
-    selection goes on from the rest. A factor chosen early as a stand-in for effects added
-    after it would otherwise hold its place to the end. A dropped factor is not tried again;
-    at most ``prune`` are dropped.
+    A stall that no refit ends, with some factor chosen and room for two more, is followed,
+    at most ``lookahead`` times, by a lookahead step (:meth:`_Selection._lookahead`): the
+    stalled step's best built addition that gained anything (bootstrap interval above 0) is
+    put in S* provisionally and one forward step taken from there; both are added when that
+    step adds a factor that qualifies. Two effects can each gain little on top of S* and much
+    together (a smaller swatch and sensor noise on top of a gusty wind), and a step that
+    adds one factor at a time needs each to qualify alone.
+
+    Where the selection would stop (``top`` factors chosen, or a stall that no refit or
+    lookahead ends) and ``prune`` > 0, a prune step (:meth:`_Selection.prune`) drops the
+    chosen factor that matters least with the later ones in place, if it no longer matters
+    (resetting it alone gives back less than ``gain``, the rule :func:`attribute` keeps a
+    factor by), and the selection goes on from the rest. A factor chosen early as a stand-in
+    for effects added after it would otherwise hold its place to the end. A dropped factor is
+    not tried again; at most ``prune`` are dropped.
 
     Returns:
         The chosen factors (in the order added, each starting at its chosen strength), their
@@ -356,7 +365,19 @@ def select(
     if len(by_name) != len(factors):
         raise ValueError(f"factors must have distinct names, got {[f.name for f in factors]}")
     (value,) = evaluate([()])
-    state = _Selection(factors, evaluate, screen, verify, gain, floor, refit, {}, value)
+    state = _Selection(
+        factors,
+        evaluate,
+        screen,
+        verify,
+        gain,
+        floor,
+        refit,
+        {},
+        value,
+        top=top,
+        lookahead=lookahead,
+    )
     while (len(state.current) < top and state.grow()) or (
         len(state.dropped) < prune and state.prune()
     ):
@@ -398,13 +419,18 @@ class _Selection:
     refitted: set[str] = dataclasses.field(default_factory=set)
     dropped: list[str] = dataclasses.field(default_factory=list)
     """Factors a prune step took out of S*; never tried again."""
+    top: int = 0
+    """Most factors S* holds (a lookahead adds two)."""
+    lookahead: int = 0
+    """Most lookahead steps (:meth:`_lookahead`)."""
+    looked: int = 0
 
     @functools.cached_property
     def by_name(self) -> dict[str, Factor]:
         return {f.name: f for f in self.factors}
 
     def grow(self) -> bool:
-        """One forward step or, after a stall, one refit step; whether a factor was added."""
+        """One forward step or, after a stall, a refit or a lookahead; whether S* grew."""
         step = self._forward(self.current, self.value)
         if step is None:
             return False
@@ -413,7 +439,7 @@ class _Selection:
             self.current = {**self.current, step.chosen: step.best[step.chosen][1]}
             self.value = step.measured
             return True
-        return self._refit()
+        return self._refit() or self._lookahead(step)
 
     def _forward(self, current: dict[str, object], value: Value) -> _Step | None:
         """Screen every open addition to ``current``, build the shortlist, pick one to add.
@@ -501,6 +527,44 @@ class _Selection:
         if fitted is None:
             return False
         self.current, self.value = fitted, measured
+        return True
+
+    def _lookahead(self, stalled: _Step) -> bool:
+        """Two factors at once: the stalled step's best small gain, and one step beyond it.
+
+        The addition built at the stalled step that closes most of those that gained anything
+        (interval of the gain above 0; a factor that re-simulates above ``floor``) goes in
+        provisionally, and one forward step is taken from there. Both are added when that
+        step adds a factor, which must qualify on top of the provisional one; the provisional
+        one then holds a place even where it alone adds little, and :func:`attribute` drops it
+        from the named factors unless resetting it gives back at least ``gain``.
+        """
+        if self.looked >= self.lookahead or not self.current:
+            return False
+        if len(self.current) + 2 > self.top:
+            return False
+        through = next(
+            (
+                (n, v)
+                for n, v in stalled.ranked
+                if _qualifies(self.by_name[n], v, self.value, 0.0, self.floor)
+            ),
+            None,
+        )
+        if through is None:
+            return False
+        self.looked += 1
+        name, provisional = through
+        current = {**self.current, name: stalled.best[name][1]}
+        step = self._forward(current, provisional)
+        if step is None:
+            return False
+        step.entry["through"] = name
+        self.path.append(step.entry)
+        if step.chosen is None:
+            return False
+        self.current = {**current, step.chosen: step.best[step.chosen][1]}
+        self.value = step.measured
         return True
 
     def prune(self) -> bool:
@@ -923,6 +987,7 @@ def fit_jointly(
     interval_refine: int = 0,
     refit: int = 0,
     prune: int = 0,
+    lookahead: int = 0,
 ) -> JointFit:
     """:func:`select` (with ``screen``), :func:`calibrate`, then :func:`attribute` at S*.
 
@@ -953,6 +1018,7 @@ def fit_jointly(
             floor=floor,
             refit=refit,
             prune=prune,
+            lookahead=lookahead,
         )
         chosen = {f.name for f in factors}
         tied = list(dict.fromkeys(n for step in path for n in step.get("tied", [])))

@@ -562,3 +562,55 @@ def test_nothing_is_pruned_from_one_factor_or_from_factors_that_all_matter():
     evaluate, screen = _strength_game(lambda strengths: 0.02 * len(strengths))
     found, _, _, path = select(pool, evaluate, screen, top=3, verify=2, prune=3)
     assert found == [] and len(path) == 1  # nothing chosen: nothing to prune (a twin)
+
+
+def _needle(strengths: dict) -> float:
+    # set 64001's shape: a closes most alone; n adds 4 points on top of it and s loses; only
+    # a, n and s together close nearly all of the gap
+    has = frozenset(strengths)
+    table = {
+        frozenset(): 0.0,
+        frozenset("a"): 0.27,
+        frozenset("n"): 0.18,
+        frozenset("s"): -0.1,
+        frozenset("an"): 0.31,
+        frozenset("as"): 0.19,
+        frozenset("ns"): 0.4,
+        frozenset("ans"): 0.96,
+    }
+    return table[has]
+
+
+def _needle_pool() -> list[Factor]:
+    stages = ("physics", "camera", "scene")
+    return [Factor(n, stage, (None,)) for n, stage in zip("ans", stages, strict=True)]
+
+
+def test_a_stall_looks_one_step_ahead_through_the_best_small_gain():
+    evaluate, screen = _strength_game(_needle)
+    pool = _needle_pool()
+    found, _, value, path = select(pool, evaluate, screen, top=4, verify=3, refit=1)
+    assert [f.name for f in found] == ["a"] and value.closure == 0.27  # n adds under 5 %
+    found, calibrated, value, path = select(
+        pool, evaluate, screen, top=4, verify=3, refit=1, lookahead=1
+    )
+    assert dict(calibrated) == {"a": None, "n": None, "s": None} and value.closure == 0.96
+    ahead = path[-1]
+    assert ahead["through"] == "n" and ahead["added"] == "s"
+    assert ahead["measured"] == {"s": 0.96}
+    fit = fit_jointly(pool, evaluate, screen=screen, top=4, verify=3, refit=1, lookahead=1)
+    assert fit.strengths == {"a": None, "n": None, "s": None} and fit.closure == 0.96
+
+
+def test_no_lookahead_without_a_chosen_factor_room_for_two_or_a_gain_to_look_through():
+    evaluate, screen = _strength_game(_needle)
+    pool = _needle_pool()
+    found, _, _, path = select(pool, evaluate, screen, top=2, verify=3, lookahead=1)
+    assert [f.name for f in found] == ["a"] and "through" not in path[-1]  # no room for two
+    evaluate, screen = _strength_game(lambda strengths: 0.02 * len(strengths))
+    found, _, _, path = select(pool, evaluate, screen, top=4, verify=3, lookahead=1)
+    assert found == [] and len(path) == 1  # nothing chosen (a twin): no lookahead
+    flat = lambda s: {frozenset(): 0.0, frozenset("a"): 0.3}.get(frozenset(s), 0.3 - 0.01)  # noqa: E731
+    evaluate, screen = _strength_game(flat)
+    found, _, _, path = select(pool, evaluate, screen, top=4, verify=3, lookahead=1)
+    assert [f.name for f in found] == ["a"] and len(path) == 2  # every addition loses
