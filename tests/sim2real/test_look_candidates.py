@@ -176,3 +176,18 @@ def test_the_render_cache_never_serves_the_render_of_another_look(nominal, tmp_p
     }
     assert len(list(renders.iterdir())) == 2 * len(specs)
     assert all(np.array_equal(again[n].frames, cached[n].frames) for n in specs)
+
+
+def test_the_library_listing_prints_and_writes_nothing(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "sim2real.candidates", "texture=grid"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "look.texture_mode" in done.stdout
+    assert list(tmp_path.iterdir()) == []  # no log file, no run folder
