@@ -139,3 +139,9 @@ def test_a_scene_killed_on_its_second_garment_keeps_the_first(tmp_path, monkeypa
     fresh = json.loads((folder / f"{scene}.json").read_text())
     assert fresh["joint_err_deg"] == resumed["joint_err_deg"]
     assert len(set(fresh["joint_err_deg"].values())) > 1  # both garments' poses took part
+    fit_only = fresh["joint_err_deg_body_fit"]  # the fit's pose is the truth's here
+    assert fit_only.keys() == fresh["joint_err_deg"].keys()
+    assert max(fit_only.values()) < 1e-6
+    summary = tables.summarise([fresh])
+    assert summary["joint_angle_err_max_deg_body_fit"] < 1e-6 < summary["joint_angle_err_max_deg"]
+    assert tables.summarise([template])["joint_angle_err_max_deg_body_fit"] is None  # older rows
