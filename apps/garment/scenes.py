@@ -315,6 +315,8 @@ LAYER_ORDER = ("pants", "skirt", "tshirt")
 LAYER_INFLATE = 0.015
 """An outer garment drapes over the body's primitives that an inner one covers made this much
 thicker [m] (the inner garment as an obstacle, without cloth-cloth contact)."""
+COVERS: dict[str, tuple[str, ...]] = {"pants": ("torso", "thigh", "lower_thigh")}
+"""Body primitives (name prefixes) an inner garment covers for the layers over it."""
 
 
 def drape_scene(
@@ -340,13 +342,22 @@ def drape_scene(
         topo = PatternTopology.build(sg.garment, edge_length)
         pattern = build_pattern(sg.garment, sg.params, topology=topo)
         x0 = register_batch(topo, pattern.coords[None], [pattern.params], body, angles)
-        obstacle = caps.copy()
-        for c, prim in enumerate(body.primitives):
-            if any(prim.name.startswith(p) for p in covered):
-                obstacle[:, c, 6] += LAYER_INFLATE
+        obstacle = layer_obstacle(body, caps, covered)
         mat = garment_material([sg.material["bend"]], [sg.material["stretch"]])
         batch = GarmentBatch.build(topo, pattern.coords[None], mat, obstacle, settings, pos_hint=x0)
         out[sg.garment] = (pattern, drape(batch, x0, settings))
-        if sg.garment == "pants":
-            covered |= {"torso", "thigh", "lower_thigh"}
+        covered |= set(COVERS.get(sg.garment, ()))
     return out
+
+
+def layer_obstacle(body: Mannequin, capsules: np.ndarray, covered) -> np.ndarray:
+    """Capsules (B, C, 7) as an outer garment meets them: thicker where an inner one lies.
+
+    ``covered``: name prefixes of the primitives an inner garment covers; those are made
+    :data:`LAYER_INFLATE` thicker.
+    """
+    obstacle = capsules.copy()
+    for c, prim in enumerate(body.primitives):
+        if any(prim.name.startswith(p) for p in covered):
+            obstacle[:, c, 6] += LAYER_INFLATE
+    return obstacle
