@@ -340,14 +340,30 @@ def stored_garments(folder: Path, scene: str) -> dict[str, dict]:
     return out
 
 
-def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> list[dict]:
-    """Curvature K and rendered wrinkle density P of the default skirt per bend multiplier.
+PROBE_GARMENTS = ("skirt", "tshirt", "pants")
+"""Garments the wrinkle probe drapes."""
 
-    In pose a, under each lighting: what the material step has to work with.
+
+def wrinkle_probe(
+    edge_length: float, garment: str = "skirt", bends=(1.0, 3.0, 10.0, 30.0, 100.0)
+) -> list[dict]:
+    """Regional curvature K and rendered wrinkle density P of a garment per bend multiplier.
+
+    In pose a, under each lighting: what the material step has to work with. The skirt has
+    its default sizing and stretch x1; the t-shirt and the pants have the sizing and stretch
+    of the scenes of pose a, the t-shirt draped over what the pants cover, as there.
+    One row per bend: ``{"bend", "curvature": {region: K}, "density_<light>": {region: P}}``.
     """
     from apps.garment.image import region_map, wrinkle_density
     from apps.garment.recovery import _hinges
-    from apps.garment.scenes import LIGHTINGS, POSES, pixel_size
+    from apps.garment.scenes import (
+        COVERS,
+        LAYER_ORDER,
+        LIGHTINGS,
+        POSES,
+        layer_obstacle,
+        pixel_size,
+    )
     from simulator.garment.drape import (
         DrapeSettings,
         GarmentBatch,
@@ -358,44 +374,72 @@ def wrinkle_probe(edge_length: float, bends=(1.0, 3.0, 10.0, 30.0, 100.0)) -> li
     from simulator.garment.patterns import PatternTopology, build_pattern
 
     body = Mannequin.build()
-    topo = PatternTopology.build("skirt", edge_length)
-    pattern = build_pattern("skirt", topology=topo)
+    topo = PatternTopology.build(garment, edge_length)
+    if garment == "skirt":
+        pattern, stretch, covered = build_pattern("skirt", topology=topo), 1.0, ()
+    else:
+        scene = next(s for s in SCENES if s.pose == "a")
+        spec = next(g for g in scene.garments if g.garment == garment)
+        pattern = build_pattern(garment, spec.params, topology=topo)
+        stretch = spec.material["stretch"]
+        layer = LAYER_ORDER.index(garment)
+        inner = [g.garment for g in scene.garments if LAYER_ORDER.index(g.garment) < layer]
+        covered = [p for g in inner for p in COVERS.get(g, ())]
     n = len(bends)
     angles = np.repeat(POSES["a"].angles[None], n, 0)
     coords = np.repeat(pattern.coords[None], n, 0)
     x0 = register_batch(topo, coords[:1], [pattern.params], body, angles[:1])
     settings = DrapeSettings(max_steps=200)
-    caps = body.capsules(angles)
+    caps = layer_obstacle(body, body.capsules(angles), covered)
     batch = GarmentBatch.build(
         topo,
         coords,
-        garment_material(list(bends), [1.0] * n),
+        garment_material(list(bends), [stretch] * n),
         caps,
         settings,
         pos_hint=np.repeat(x0, n, 0),
     )
     pos = drape(batch, np.repeat(x0, n, 0), settings).pos
-    regions = primitive_regions(body, "skirt")
-    vr = vertex_regions(pos[0].numpy(), caps[0], regions)
-    k = regional_curvature(
-        pos, torch.as_tensor(topo.tri_indices), torch.as_tensor(_hinges(topo)), vr, 1
-    )[:, 0].numpy()
+    names = list(REGIONS[garment])
+    regions = primitive_regions(body, garment)
     camera = scene_camera()
     rows = []
     for b, bend in enumerate(bends):
-        row = {"bend": bend, "curvature": float(k[b])}
+        vr = vertex_regions(pos[b].numpy(), caps[b], regions)
+        k = regional_curvature(
+            pos[b : b + 1],
+            torch.as_tensor(topo.tri_indices),
+            torch.as_tensor(_hinges(topo)),
+            vr,
+            len(names),
+        )[0].numpy()
+        row = {"bend": bend, "curvature": dict(zip(names, k.tolist(), strict=True))}
         for light in LIGHTINGS:
             image, _, masks = render_scene(
                 camera,
                 scene_light(light),
                 caps[b],
-                [(pos[b].numpy(), topo.tri_indices, GARMENT_COLORS["skirt"])],
+                [(pos[b].numpy(), topo.tri_indices, GARMENT_COLORS[garment])],
             )
             rmap = region_map(camera, caps[b], regions, masks[0])
-            p, _ = wrinkle_density(image, masks[0], rmap, 1, pixel_size(camera))
-            row[f"density_{light}"] = float(p[0])
+            p, _ = wrinkle_density(image, masks[0], rmap, len(names), pixel_size(camera))
+            row[f"density_{light}"] = dict(zip(names, p.tolist(), strict=True))
         rows.append(row)
     return rows
+
+
+def print_probe(rows: list[dict]) -> None:
+    """The probe's K and P per bend multiplier, one column per region and light."""
+    columns = [k for k in rows[0] if k != "bend"]
+    heads = [
+        f"{c.replace('density_', 'P ').replace('curvature', 'K')} {r}"
+        for c in columns
+        for r in rows[0][c]
+    ]
+    print(f"{'bend':>6s} " + " ".join(f"{h:>16s}" for h in heads))
+    for row in rows:
+        cells = [f"{v:16.2f}" for c in columns for v in row[c].values()]
+        print(f"{row['bend']:6.1f} " + " ".join(cells))
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -576,8 +620,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--fresh", action="store_true", help="recompute every scene")
     parser.add_argument(
         "--probe",
-        action="store_true",
-        help="only the wrinkle probe: K and P of a skirt per bending multiplier",
+        nargs="?",
+        const="skirt",
+        choices=PROBE_GARMENTS,
+        help="only the wrinkle probe: K and P [1/m] per region of a garment (default the "
+        "skirt) per bending multiplier",
     )
     parser.add_argument(
         "--table",
@@ -619,16 +666,8 @@ def main(argv: list[str] | None = None) -> dict:
         print(text, flush=True)
 
     if args.probe:
-        probe = wrinkle_probe(settings.edge_length)
-        print(
-            f"{'bend':>6s} {'K [1/m]':>8s} "
-            + " ".join(f"{'P ' + k[8:]:>10s}" for k in probe[0] if k.startswith("d"))
-        )
-        for row in probe:
-            print(
-                f"{row['bend']:6.1f} {row['curvature']:8.2f} "
-                + " ".join(f"{v:10.2f}" for k, v in row.items() if k.startswith("density"))
-            )
+        probe = wrinkle_probe(settings.edge_length, args.probe)
+        print_probe(probe)
         print(json.dumps(probe))
         return {"probe": probe}
 

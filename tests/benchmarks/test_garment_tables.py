@@ -14,7 +14,9 @@ from benchmarks.thesis.garment_tables import (
     TABLE_START,
     main,
     markdown_table,
+    print_probe,
     thesis_column,
+    wrinkle_probe,
 )
 from simulator.garment.body import Pose
 
@@ -145,3 +147,22 @@ def test_a_scene_killed_on_its_second_garment_keeps_the_first(tmp_path, monkeypa
     summary = tables.summarise([fresh])
     assert summary["joint_angle_err_max_deg_body_fit"] < 1e-6 < summary["joint_angle_err_max_deg"]
     assert tables.summarise([template])["joint_angle_err_max_deg_body_fit"] is None  # older rows
+
+
+def test_the_wrinkle_probe_reads_every_region_of_a_layered_garment():
+    rows = wrinkle_probe(0.12, "tshirt", bends=(1.0, 100.0))
+    assert [r["bend"] for r in rows] == [1.0, 100.0]
+    for row in rows:
+        assert set(row) == {"bend", "curvature", "density_midday", "density_sunset"}
+        for key in ("curvature", "density_midday", "density_sunset"):
+            assert list(row[key]) == ["body", "sleeves"]
+            assert all(np.isfinite(v) and v >= 0 for v in row[key].values())
+    # A stiffer fabric folds less: the sleeves' curvature falls from x1 to x100.
+    assert rows[1]["curvature"]["sleeves"] < rows[0]["curvature"]["sleeves"]
+    print_probe(rows)
+
+
+def test_the_probe_names_the_garments_it_knows(capsys):
+    with pytest.raises(SystemExit):
+        main(["--probe", "hat"])
+    assert "invalid choice: 'hat'" in capsys.readouterr().err
