@@ -352,7 +352,9 @@ def wrinkle_probe(
     In pose a, under each lighting: what the material step has to work with. The skirt has
     its default sizing and stretch x1; the t-shirt and the pants have the sizing and stretch
     of the scenes of pose a, the t-shirt draped over what the pants cover, as there.
-    One row per bend: ``{"bend", "curvature": {region: K}, "density_<light>": {region: P}}``.
+    One row per bend: ``{"bend", "converged", "max_speed", "curvature": {region: K},
+    "density_<light>": {region: P}}`` (whether the drape passed its stopping test in the
+    scenes' 200 steps, and its largest vertex speed [m/s] at the end).
     """
     from apps.garment.image import region_map, wrinkle_density
     from apps.garment.recovery import _hinges
@@ -399,7 +401,8 @@ def wrinkle_probe(
         settings,
         pos_hint=np.repeat(x0, n, 0),
     )
-    pos = drape(batch, np.repeat(x0, n, 0), settings).pos
+    result = drape(batch, np.repeat(x0, n, 0), settings)
+    pos = result.pos
     names = list(REGIONS[garment])
     regions = primitive_regions(body, garment)
     camera = scene_camera()
@@ -413,7 +416,12 @@ def wrinkle_probe(
             vr,
             len(names),
         )[0].numpy()
-        row = {"bend": bend, "curvature": dict(zip(names, k.tolist(), strict=True))}
+        row = {
+            "bend": bend,
+            "converged": bool(result.converged[b]),
+            "max_speed": float(result.max_speed[b]),
+            "curvature": dict(zip(names, k.tolist(), strict=True)),
+        }
         for light in LIGHTINGS:
             image, _, masks = render_scene(
                 camera,
@@ -430,16 +438,19 @@ def wrinkle_probe(
 
 def print_probe(rows: list[dict]) -> None:
     """The probe's K and P per bend multiplier, one column per region and light."""
-    columns = [k for k in rows[0] if k != "bend"]
+    columns = [k for k in rows[0] if isinstance(rows[0][k], dict)]
     heads = [
         f"{c.replace('density_', 'P ').replace('curvature', 'K')} {r}"
         for c in columns
         for r in rows[0][c]
     ]
-    print(f"{'bend':>6s} " + " ".join(f"{h:>16s}" for h in heads))
+    print(f"{'bend':>6s} {'speed m/s':>10s} " + " ".join(f"{h:>16s}" for h in heads))
     for row in rows:
         cells = [f"{v:16.2f}" for c in columns for v in row[c].values()]
-        print(f"{row['bend']:6.1f} " + " ".join(cells))
+        speed = f"{row['max_speed']:9.3f}{' ' if row['converged'] else '*'}"
+        print(f"{row['bend']:6.1f} {speed} " + " ".join(cells))
+    if not all(row["converged"] for row in rows):
+        print("* not at rest after the scenes' 200 drape steps")
 
 
 def summarise(rows: list[dict]) -> dict:

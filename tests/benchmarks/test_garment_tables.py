@@ -153,7 +153,14 @@ def test_the_wrinkle_probe_reads_every_region_of_a_layered_garment():
     rows = wrinkle_probe(0.12, "tshirt", bends=(1.0, 100.0))
     assert [r["bend"] for r in rows] == [1.0, 100.0]
     for row in rows:
-        assert set(row) == {"bend", "curvature", "density_midday", "density_sunset"}
+        assert set(row) == {
+            "bend",
+            "converged",
+            "max_speed",
+            "curvature",
+            "density_midday",
+            "density_sunset",
+        }
         for key in ("curvature", "density_midday", "density_sunset"):
             assert list(row[key]) == ["body", "sleeves"]
             assert all(np.isfinite(v) and v >= 0 for v in row[key].values())
