@@ -110,3 +110,37 @@ def test_step_is_pure_and_rejects_bad_dt():
             integ.step(model, state, control, bad)
     with pytest.raises(ValueError, match="cg_rtol"):
         NewtonSettings(cg_rtol=0)
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_sparse_lu_solves_the_free_block_as_a_dense_solve(symmetric):
+    """The direct solver's LU (symmetric mode, a hint only) equals a dense solve of the free
+    dofs, on a symmetric and on a nonsymmetric matrix; constrained dofs get zero."""
+    from simulator.solvers.block_sparse import BlockPattern, BlockSparse
+    from simulator.solvers.newton import _coo_pattern, lu_solve, sparse_lu_factors
+
+    gen = torch.Generator().manual_seed(3)
+    tri = torch.tensor([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    verts, batch = 6, 2
+    mat = BlockSparse.zeros(
+        BlockPattern.from_topologies(verts, [tri]), batch, torch.zeros(1, dtype=DT)
+    )
+    dense_el = torch.randn(batch, len(tri), 9, 9, generator=gen, dtype=DT)
+    if symmetric:
+        dense_el = dense_el @ dense_el.transpose(-1, -2)
+    # (B, N, 9, 9) -> (B, N, k, k, 3, 3): row (a, i), column (b, j).
+    mat.add_elements(tri, dense_el.reshape(batch, len(tri), 3, 3, 3, 3).permute(0, 1, 2, 4, 3, 5))
+    mat.add_vertex_blocks(torch.eye(3, dtype=DT).expand(batch, verts, 3, 3) * 20.0)
+    free = torch.ones(batch, verts, 1, dtype=DT)
+    free[0, 2] = 0.0  # one vertex pinned in the first instance
+    rhs = torch.randn(batch, verts, 3, generator=gen, dtype=DT) * free
+    got = lu_solve(sparse_lu_factors(mat, free), rhs)
+    rows, cols = _coo_pattern(mat)
+    for b in range(batch):
+        full = np.zeros((3 * verts, 3 * verts))
+        np.add.at(full, (rows, cols), mat.values[b].reshape(-1).numpy())
+        assert np.abs(full - full.T).max() < 1e-9 if symmetric else np.abs(full - full.T).max() > 1
+        dofs = np.nonzero(np.repeat(free[b, :, 0].numpy() > 0, 3))[0]
+        want = np.zeros(3 * verts)
+        want[dofs] = np.linalg.solve(full[np.ix_(dofs, dofs)], rhs[b].reshape(-1).numpy()[dofs])
+        assert np.abs(got[b].reshape(-1).numpy() - want).max() < 1e-10 * np.abs(want).max()
