@@ -39,6 +39,7 @@ COMMANDS = [
     "benchmarks.sim2real_rung_invariance",
     "benchmarks.mujoco_cloth",
     "benchmarks.precond_bench",
+    "benchmarks.drape_bench",
     "benchmarks.render_bench",
     "benchmarks.sim_bench",
     "benchmarks.thread_load_bench",

@@ -285,6 +285,13 @@ def direct_solve(sparse, matvec, rhs: torch.Tensor, free: torch.Tensor, active: 
     return lu_solve(factors, rhs)
 
 
+SPLU_OPTIONS: dict = {"SymmetricMode": True}
+"""SuperLU options of the direct solver. Newton's Hessians are symmetric; symmetric mode (a
+hint: pivoting still guards a nonsymmetric matrix) keeps the fill-reducing order on both sides
+and cuts the factorisation, most of a fine mesh's drape (``python -m benchmarks.drape_bench``
+against ``{}``, SuperLU's default)."""
+
+
 def sparse_lu_factors(sparse, free: torch.Tensor, active: torch.Tensor | None = None) -> list:
     """SuperLU factors of each instance's free-dof block of a :class:`BlockSparse` matrix.
 
@@ -308,7 +315,7 @@ def sparse_lu_factors(sparse, free: torch.Tensor, active: torch.Tensor | None = 
         dofs = np.nonzero(np.repeat(free_np[b], 3))[0]
         mat = sp.csc_matrix((values[b], (rows, cols)), shape=(3 * verts, 3 * verts))
         mat = mat[dofs][:, dofs].tocsc()
-        out.append((splu(mat, permc_spec="MMD_AT_PLUS_A"), dofs))
+        out.append((splu(mat, permc_spec="MMD_AT_PLUS_A", options=SPLU_OPTIONS), dofs))
     return out
 
 
