@@ -1067,7 +1067,7 @@ def _repose(pos: np.ndarray, body: Mannequin, angles: np.ndarray, targets: np.nd
     Relative bone transforms ``M_j(target) M_j(angles)^-1`` with weights from the draped
     shape, then the push-out of :func:`.skinning.remove_interpenetrations` (few rounds).
     """
-    from simulator.garment.skinning import _push_out, linear_blend, skinning_weights
+    from simulator.garment.skinning import linear_blend, push_out, skinning_weights
 
     bones_now = body.bone_transforms(angles[None])[0]
     # Weights are computed in the rest pose: undo the current pose first.
@@ -1076,7 +1076,7 @@ def _repose(pos: np.ndarray, body: Mannequin, angles: np.ndarray, targets: np.nd
     weights = skinning_weights(rest_pos, body)
     posed = linear_blend(rest_pos, weights, body.bone_transforms(targets))
     caps = body.capsules(targets)
-    return np.stack([_push_out(p, c, 0.004, passes=8) for p, c in zip(posed, caps, strict=True)])
+    return np.stack([push_out(p, c, 0.004, passes=8) for p, c in zip(posed, caps, strict=True)])
 
 
 def _weights_posed(pos: np.ndarray, body: Mannequin, angles: np.ndarray) -> np.ndarray:

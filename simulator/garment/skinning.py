@@ -27,6 +27,7 @@ from .patterns import GarmentType, Pattern
 __all__ = [
     "CLEARANCE",
     "linear_blend",
+    "push_out",
     "register",
     "remove_interpenetrations",
     "rest_placement",
@@ -247,7 +248,7 @@ def linear_blend(points: np.ndarray, weights: np.ndarray, bones: np.ndarray) -> 
 # ------------------------------------------------------------------------ interpenetrations
 
 
-def _push_out(
+def push_out(
     pos: np.ndarray, capsules: np.ndarray, clearance: float, passes: int = 4
 ) -> np.ndarray:
     """Move every vertex inside a capsule (plus clearance) to its surface, (V, 3)."""
@@ -297,7 +298,7 @@ def remove_interpenetrations(
     x = np.array(pos, dtype=np.float64, copy=True)
     count = np.bincount(edges.ravel(), minlength=len(x)).astype(np.float64)[:, None]
     for _ in range(iterations):
-        x = _push_out(x, capsules, clearance)
+        x = push_out(x, capsules, clearance)
         d = x[edges[:, 1]] - x[edges[:, 0]]
         length = np.linalg.norm(d, axis=1)
         corr = 0.5 * ((length - rest_length) / np.maximum(length, 1e-12))[:, None] * d
@@ -305,7 +306,7 @@ def remove_interpenetrations(
         np.add.at(delta, edges[:, 0], corr)
         np.add.at(delta, edges[:, 1], -corr)
         x = x + 0.8 * delta / np.maximum(count, 1.0)
-    return _push_out(x, capsules, clearance, passes=16)
+    return push_out(x, capsules, clearance, passes=16)
 
 
 def register(
