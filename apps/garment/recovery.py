@@ -60,6 +60,8 @@ from simulator.garment.patterns import (
     search_box,
     to_search,
 )
+from simulator.garment.resample import resample_positions
+from simulator.garment.skinning import push_out
 
 from .image import (
     SilhouetteTarget,
@@ -124,6 +126,9 @@ class RecoverySettings:
 
     edge_length: float = 0.05
     """Target edge length of the garment mesh [m]."""
+    material_edge_length: float | None = None
+    """Edge length of the drapes whose wrinkles the material and pose steps compare [m];
+    None: ``edge_length``. Wrinkles need a finer mesh than the silhouette does."""
     swarm_size: int = 12
     """Particles per garment swarm (*thesis*: 40); each is one instance of a batched drape."""
     rounds: int = 3
@@ -166,10 +171,16 @@ class RecoverySettings:
             low = 0 if name == "joint_rounds" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise InputError(f"recovery.{name} must be an integer >= {low}, got {value!r}")
-        if not (math.isfinite(self.edge_length) and 0.02 <= self.edge_length <= 0.1):
-            raise InputError(
-                f"recovery.edge_length must lie in [0.02, 0.1] m, got {self.edge_length!r}"
-            )
+        for name in ("edge_length", "material_edge_length"):
+            value = getattr(self, name)
+            if value is None and name == "material_edge_length":
+                continue
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not (math.isfinite(value) and 0.02 <= value <= 0.1)
+            ):
+                raise InputError(f"recovery.{name} must lie in [0.02, 0.1] m, got {value!r}")
 
     def planned_iterations(self) -> int:
         """Swarm iterations of the whole recovery (for the progress bar)."""
@@ -877,6 +888,21 @@ def recover_garment(
 
     topology = PatternTopology.build(garment, settings.edge_length)
     ev = _Evaluator(topology, target, body_fit, camera, light, settings, timings, should_stop)
+    # The material and pose steps compare wrinkles, on their own (finer) mesh when set.
+    fine = settings.material_edge_length
+    if fine is None or fine == settings.edge_length:
+        ev_m = ev
+    else:
+        ev_m = _Evaluator(
+            PatternTopology.build(garment, fine),
+            target,
+            body_fit,
+            camera,
+            light,
+            settings,
+            timings,
+            should_stop,
+        )
     history: list[dict] = []
     rng_seed = settings.seed
     s = settings.swarm_size
@@ -885,32 +911,57 @@ def recover_garment(
         g_best = default_params(garment)
         c_best = {"bend": MATERIAL_SPECS[0].low, "stretch": 1.0}
         angles = body_fit.pose.angles.copy()
+
+        def carry(x: np.ndarray, src: _Evaluator, dst: _Evaluator) -> np.ndarray:
+            """A drape of ``src``'s mesh as a start on ``dst``'s (same G, pose)."""
+            if src is dst:
+                return x
+            tick = time.perf_counter()
+            moved = resample_positions(
+                src.topology,
+                src.topology.coords(g_best),
+                x,
+                dst.topology,
+                dst.topology.coords(g_best),
+            )
+            caps = ev.mannequin.capsules(angles[None])[0]
+            out = push_out(moved, caps, 0.004, passes=8)
+            timings["simulation"] += time.perf_counter() - tick
+            return out
+
+        def drape_one(e: _Evaluator, start: np.ndarray, steps: int):
+            coords = e.topology.coords(g_best)
+            return e.drape(
+                coords[None],
+                [c_best["bend"]],
+                [c_best["stretch"]],
+                angles[None],
+                start[None],
+                steps,
+            )
+
         coords0 = topology.coords(g_best)
         tick = time.perf_counter()
         start = register_batch(topology, coords0[None], [g_best], ev.mannequin, angles[None])
         timings["simulation"] += time.perf_counter() - tick
-        pos, caps, _ = ev.drape(
-            coords0[None],
-            [c_best["bend"]],
-            [c_best["stretch"]],
-            angles[None],
-            start,
-            settings.first_drape_steps,
-        )
-        x_best = pos[0]
-        sil = ev.silhouette(pos)[0]
-        cur_obj, k_best = ev.curvature_objective(pos, caps)
-        f_best = {
-            "material": float(cur_obj[0] + settings.silhouette_weight * sil),
-            "sizing": float(sil),
-        }
+        pos, _, _ = drape_one(ev, start[0], settings.first_drape_steps)
+        x_s = pos[0]  # the incumbent drape on the sizing mesh
+        f_best = {"sizing": float(ev.silhouette(pos)[0])}
+        if ev_m is not ev:
+            pos, _, _ = drape_one(ev_m, carry(x_s, ev, ev_m), settings.first_drape_steps)
+        x_m = pos[0]  # ... and on the material mesh
+        caps = ev.mannequin.capsules(angles[None])
+        cur_obj, k_best = ev_m.curvature_objective(pos, caps)
+        sil = ev_m.silhouette(pos)[0]
+        f_best["material"] = float(cur_obj[0] + settings.silhouette_weight * sil)
+        k_best = k_best[0]
 
         _, lo_g, hi_g = search_box(garment)
         lo_c = np.log10([p.low for p in MATERIAL_SPECS])
         hi_c = np.log10([p.high for p in MATERIAL_SPECS])
 
         def material_round(stage: str, rnd: int):
-            nonlocal c_best, x_best, f_best, k_best
+            nonlocal c_best, x_s, x_m, f_best, k_best
             # The first material swarm searches the whole box: its incumbent (the softest
             # fabric) is only a guess, and a swarm scattered around it never reached a stiff
             # fabric (measured: bend 2.9 recovered for 60 on skirt_high_midday, --quick).
@@ -922,21 +973,21 @@ def recover_garment(
                 np.log10([c_best["bend"], c_best["stretch"]]),
                 spread=None if stage == "material" and rnd == 0 else 0.15,
             )
-            coords = np.repeat(topology.coords(g_best)[None], s, 0)
+            coords = np.repeat(ev_m.topology.coords(g_best)[None], s, 0)
             for it in range(settings.material_iters):
                 xs = swarm.ask()
                 bend, stretch = 10 ** xs[:, 0], 10 ** xs[:, 1]
-                pos, caps, res = ev.drape(
+                pos, caps, res = ev_m.drape(
                     coords,
                     bend,
                     stretch,
                     np.repeat(angles[None], s, 0),
-                    np.repeat(x_best[None], s, 0),
+                    np.repeat(x_m[None], s, 0),
                     settings.drape_steps,
                 )
                 t = time.perf_counter()
-                sil = ev.silhouette(pos)
-                obj, k = ev.curvature_objective(pos, caps)
+                sil = ev_m.silhouette(pos)
+                obj, k = ev_m.curvature_objective(pos, caps)
                 f = obj + settings.silhouette_weight * sil
                 f = np.where(res.failed, np.inf, f)
                 # Targets move as the map I is refitted: re-score the incumbent's entry too.
@@ -944,7 +995,7 @@ def recover_garment(
                 i = int(np.argmin(f))
                 if f[i] <= f_best["material"] or it == 0:
                     c_best = {"bend": float(bend[i]), "stretch": float(stretch[i])}
-                    x_best, k_best, f_best["material"] = pos[i], k[i], float(f[i])
+                    x_m, k_best, f_best["material"] = pos[i], k[i], float(f[i])
                     f_best["sizing"] = float(sil[i])
                 history.append(
                     {"stage": stage, "round": rnd, "iteration": it, "objective": f_best["material"]}
@@ -952,9 +1003,15 @@ def recover_garment(
                 timings["bookkeeping"] += time.perf_counter() - t
                 if progress:
                     progress(stage)
+            if ev_m is ev:
+                x_s = x_m
+            else:
+                # The sizing mesh's incumbent, re-draped with the new material.
+                pos, _, _ = drape_one(ev, carry(x_m, ev_m, ev), settings.drape_steps)
+                x_s, f_best["sizing"] = pos[0], float(ev.silhouette(pos)[0])
 
         def sizing_round(rnd: int):
-            nonlocal g_best, x_best, f_best
+            nonlocal g_best, x_s, x_m, f_best
             swarm = _swarm(lo_g, hi_g, s, rng_seed + 1000 * rnd + 2, to_search(garment, g_best))
             for it in range(settings.sizing_iters):
                 xs = swarm.ask()
@@ -965,7 +1022,7 @@ def recover_garment(
                     [c_best["bend"]] * s,
                     [c_best["stretch"]] * s,
                     np.repeat(angles[None], s, 0),
-                    np.repeat(x_best[None], s, 0),
+                    np.repeat(x_s[None], s, 0),
                     settings.drape_steps,
                 )
                 t = time.perf_counter()
@@ -973,7 +1030,7 @@ def recover_garment(
                 swarm.tell(f)
                 i = int(np.argmin(f))
                 if f[i] <= f_best["sizing"]:
-                    g_best, x_best, f_best["sizing"] = params[i], pos[i], float(f[i])
+                    g_best, x_s, f_best["sizing"] = params[i], pos[i], float(f[i])
                 history.append(
                     {
                         "stage": "sizing",
@@ -985,6 +1042,8 @@ def recover_garment(
                 timings["bookkeeping"] += time.perf_counter() - t
                 if progress:
                     progress("sizing")
+            # The material mesh starts its next round from the new sizing's drape.
+            x_m = carry(x_s, ev, ev_m)
 
         for rnd in range(settings.rounds):
             material_round("material", rnd)
@@ -992,7 +1051,7 @@ def recover_garment(
             if should_stop is not None and should_stop():
                 break
 
-        # Alg. 4: pose, then material, with the sizing fixed.
+        # Alg. 4: pose, then material, with the sizing fixed (on the material mesh).
         fitted = body_fit.pose.angles
         keys = [(JOINTS.index(j), a) for j, a, _, _ in BODY_SEARCH]
         # The body term compares the body with the person's silhouette. (The garment's mask
@@ -1004,15 +1063,15 @@ def recover_garment(
             lo_p, hi_p = -np.full(len(keys), r), np.full(len(keys), r)
             current = np.array([angles[j, a] - fitted[j, a] for j, a in keys])
             swarm = _swarm(lo_p, hi_p, s, rng_seed + 1000 * rnd + 3, current)
-            coords = np.repeat(topology.coords(g_best)[None], s, 0)
+            coords = np.repeat(ev_m.topology.coords(g_best)[None], s, 0)
             f_pose = np.inf
             for it in range(settings.pose_iters):
                 xs = swarm.ask()
                 cand = np.repeat(fitted[None], s, 0)
                 for k, (j, a) in enumerate(keys):
                     cand[:, j, a] += xs[:, k]
-                start = _repose(x_best, ev.mannequin, angles, cand)
-                pos, caps, res = ev.drape(
+                start = _repose(x_m, ev_m.mannequin, angles, cand)
+                pos, caps, res = ev_m.drape(
                     coords,
                     [c_best["bend"]] * s,
                     [c_best["stretch"]] * s,
@@ -1021,7 +1080,7 @@ def recover_garment(
                     settings.drape_steps,
                 )
                 t = time.perf_counter()
-                obj, k = ev.curvature_objective(pos, caps)
+                obj, k = ev_m.curvature_objective(pos, caps)
                 body_term = np.array(
                     [body_sil.distance(capsule_mask(camera, c, target.mask.shape)) for c in caps]
                 )
@@ -1030,7 +1089,7 @@ def recover_garment(
                 i = int(np.argmin(f))
                 if f[i] < f_pose:
                     f_pose = float(f[i])
-                    angles, x_best, k_best = cand[i].copy(), pos[i], k[i]
+                    angles, x_m, k_best = cand[i].copy(), pos[i], k[i]
                 history.append(
                     {"stage": "pose", "round": rnd, "iteration": it, "objective": f_pose}
                 )
@@ -1041,18 +1100,20 @@ def recover_garment(
             material_round("joint_material", rnd)
     finally:
         ev.close()
+        ev_m.close()
 
-    pattern = Pattern(topology, check_params(garment, g_best), topology.coords(g_best))
-    a, b = ev.wrinkle_map()
+    final = ev_m.topology
+    pattern = Pattern(final, check_params(garment, g_best), final.coords(g_best))
+    a, b = ev_m.wrinkle_map()
     return RecoveryResult(
         garment=garment,
         pattern=pattern,
         material=c_best,
         body=body_fit,
         pose=Pose(angles),
-        pos=x_best,
+        pos=x_m,
         curvature=np.asarray(k_best),
-        curvature_target=ev.curvature_target(),
+        curvature_target=ev_m.curvature_target(),
         wrinkle_map=(a, b),
         density=target.density,
         light=light,

@@ -303,9 +303,19 @@ def code_commit() -> str | None:
     return head + ("+dirty" if dirty else "")
 
 
+def scene_edge_length(settings: RecoverySettings) -> float:
+    """The scenes' mesh [m]: the finest the recovery uses.
+
+    An image holds at least the detail the recovery compares.
+    """
+    return min(settings.edge_length, settings.material_edge_length or settings.edge_length)
+
+
 def rows_folder(work: Path, settings: RecoverySettings) -> Path:
     """Where the rows made with these settings live: one folder per settings hash."""
-    text = json.dumps(dataclasses.asdict(settings), sort_keys=True)
+    # A setting left unset (None) does not split the rows: rows made before it existed resume.
+    values = {k: v for k, v in dataclasses.asdict(settings).items() if v is not None}
+    text = json.dumps(values, sort_keys=True)
     return work / hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
@@ -619,6 +629,13 @@ def main(argv: list[str] | None = None) -> dict:
         help="JSON file (default: docs/results/garment_tables.json; --quick: none)",
     )
     parser.add_argument("--edge-length", type=float, default=None, help="m (default 0.05)")
+    parser.add_argument(
+        "--material-edge-length",
+        type=float,
+        default=None,
+        help="m: the material and pose steps' own mesh (default: --edge-length); the scenes "
+        "are draped at the finer of the two",
+    )
     parser.add_argument("--swarm", type=int, default=None, help="particles per swarm (16)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
@@ -666,6 +683,8 @@ def main(argv: list[str] | None = None) -> dict:
         names = args.scenes or [s.name for s in SCENES]
     if args.edge_length is not None:
         settings = dataclasses.replace(settings, edge_length=args.edge_length)
+    if args.material_edge_length is not None:
+        settings = dataclasses.replace(settings, material_edge_length=args.material_edge_length)
     if args.swarm is not None:
         settings = dataclasses.replace(settings, swarm_size=args.swarm)
     by_name = scenes_by_name(parser, names)
@@ -699,7 +718,12 @@ def main(argv: list[str] | None = None) -> dict:
 
             kept = {} if args.fresh else stored_garments(folder, name)
             scene_row = run_scene(
-                by_name[name], settings, settings.edge_length, log, kept=kept, on_garment=keep
+                by_name[name],
+                settings,
+                scene_edge_length(settings),
+                log,
+                kept=kept,
+                on_garment=keep,
             )
             row = {**scene_row, "commit": commit}
             atomic_write_bytes(folder / f"{name}.json", (json.dumps(row) + "\n").encode())

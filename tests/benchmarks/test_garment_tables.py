@@ -173,3 +173,32 @@ def test_the_probe_names_the_garments_it_knows(capsys):
     with pytest.raises(SystemExit):
         main(["--probe", "hat"])
     assert "invalid choice: 'hat'" in capsys.readouterr().err
+
+
+def test_a_finer_material_mesh_drapes_the_scenes_finer_in_rows_of_their_own(tmp_path, monkeypatch):
+    import benchmarks.thesis.garment_tables as tables
+
+    report = json.loads(RESULTS.read_text())
+    made = []
+
+    def fake_scene(scene, settings, edge_length, log, **_garments_kept):
+        made.append((settings.edge_length, settings.material_edge_length, edge_length))
+        return {**copy.deepcopy(report["rows"][0]), "scene": scene.name}
+
+    monkeypatch.setattr(tables, "run_scene", fake_scene)
+    monkeypatch.setattr(tables, "use_process_threads", lambda *a, **k: None)
+    argv = ["--scenes", "a_midday", "--out", str(tmp_path / "r.json")]
+    argv += ["--work", str(tmp_path / "work")]
+    main(argv)
+    main([*argv, "--material-edge-length", "0.025"])
+    assert made == [(0.05, None, 0.05), (0.05, 0.025, 0.025)]
+    assert len(list((tmp_path / "work").iterdir())) == 2
+
+
+def test_the_committed_rows_resume_under_the_default_settings():
+    """An unset setting does not change the rows' folder: the committed rows stay in use."""
+    from apps.garment.recovery import RecoverySettings
+    from benchmarks.thesis.garment_tables import rows_folder, stored_row
+
+    folder = rows_folder(ROOT / "reports" / "garment_tables", RecoverySettings())
+    assert stored_row(folder, "a_midday") is not None

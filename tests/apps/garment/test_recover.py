@@ -171,9 +171,13 @@ def _compose(*overrides):
 
 
 @pytest.mark.render
-def test_the_command_writes_its_files(tmp_path):
+@pytest.mark.parametrize("material_mesh", [None, 0.07])
+def test_the_command_writes_its_files(material_mesh, tmp_path):
+    """Every output, with the material step on the sizing mesh or on a finer one of its own
+    (the drape written is then on the finer mesh)."""
     image, mask, person = _tiny_image(tmp_path)
     out = tmp_path / "out"
+    extra = [] if material_mesh is None else [f"recovery.material_edge_length={material_mesh}"]
     cfg = _compose(
         f"image={image}",
         "garment=skirt",
@@ -181,8 +185,12 @@ def test_the_command_writes_its_files(tmp_path):
         f"person_mask={person}",
         f"out_dir={out}",
         *TINY,
+        *extra,
     )
     result = recover_entry.run(cfg)
+    mesh = PatternTopology.build("skirt", material_mesh or 0.1)
+    assert result.pattern.topology.vert_count == mesh.vert_count
+    assert result.pos.shape == (mesh.vert_count, 3)
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted([*recover_entry.OUTPUTS, "garment.obj", "body.obj"])
     svg = ET.parse(out / "pattern.svg").getroot()
@@ -240,6 +248,11 @@ def _refuse(*args, **kwargs):
         ("image", "garment=dress", "garment must be one of skirt, pants, tshirt; got 'dress'"),
         ("image", "recovery.swarm_size=1", "recovery.swarm_size must be an integer >= 2"),
         ("image", "recovery.edge_length=0.5", "recovery.edge_length must lie in [0.02, 0.1] m"),
+        (
+            "image",
+            "recovery.material_edge_length=0.01",
+            "recovery.material_edge_length must lie in [0.02, 0.1] m",
+        ),
         ("image", "+recovery.speed=3", "recovery: unknown ['speed']"),
         ("image", "export=gif", "export must be one of obj, ply; got 'gif'"),
         ("image", "camera.yfov_deg=500", "camera.yfov_deg must be a number in [1.0, 120.0]"),
