@@ -40,7 +40,7 @@ from common.errors import InputError
 from simulator.garment.patterns import GARMENT_TYPES, GarmentType, param_specs
 from simulator.threads import use_process_threads
 
-from .recovery import RecoveryResult, RecoverySettings, recover_garment
+from .recovery import RecoveryResult, RecoverySettings, check_under, recover_garment
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,10 @@ def _checked(cfg: DictConfig) -> dict:
     with config_errors():
         threads = check_threads(cfg.get("threads", 1), "threads")
         garment = check_choice(cfg.garment, "garment", GARMENT_TYPES)
+        under = cfg.get("under") or []
+        if isinstance(under, str) or not all(isinstance(g, str) for g in under):
+            raise InputError(f"under must be a list of garment names, got {under!r}")
+        under = check_under(garment, list(under))
         seed = check_int(cfg.seed, "seed", 0)
         export = check_choice(cfg.export, "export", EXPORT_FORMATS)
         cam = cfg.camera
@@ -143,6 +147,7 @@ def _checked(cfg: DictConfig) -> dict:
     return {
         "threads": threads,
         "garment": garment,
+        "under": under,
         "settings": settings,
         "image": image,
         "mask": mask,
@@ -196,6 +201,7 @@ def run(cfg: DictConfig) -> RecoveryResult:
             settings,
             mask=fields["mask"],
             person=person,
+            under=fields["under"],
             progress=progress,
         )
     finally:

@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -72,7 +72,15 @@ from .image import (
     region_map,
     wrinkle_density,
 )
-from .scenes import REGIONS, pixel_size, primitive_regions, vertex_regions
+from .scenes import (
+    COVERS,
+    LAYER_ORDER,
+    REGIONS,
+    layer_obstacle,
+    pixel_size,
+    primitive_regions,
+    vertex_regions,
+)
 
 __all__ = [
     "BODY_SEARCH",
@@ -82,8 +90,10 @@ __all__ = [
     "RecoveryResult",
     "RecoverySettings",
     "accuracy",
+    "check_under",
     "estimate_light",
     "fit_body",
+    "inner_layers",
     "recover_garment",
     "skin_mask",
 ]
@@ -663,8 +673,10 @@ class _Evaluator:
         settings: RecoverySettings,
         timings: dict,
         should_stop,
+        covered: tuple[str, ...] = (),
     ):
         self.topology = topology
+        self.covered = covered
         self.target = target
         self.body = body
         self.mannequin = body.mannequin()
@@ -690,7 +702,11 @@ class _Evaluator:
             self._renderer = None
 
     def drape(self, coords, bend, stretch, angles, start, steps) -> tuple:
-        """Drape a batch; returns (positions (B, V, 3), capsules (B, C, 7), DrapeResult)."""
+        """Drape a batch; returns (positions (B, V, 3), capsules (B, C, 7), DrapeResult).
+
+        The garment meets the body thickened where the layers under it cover it; the
+        capsules returned are the body's own (they assign the regions).
+        """
         t = time.perf_counter()
         caps = self.mannequin.capsules(angles)
         settings = DrapeSettings(
@@ -700,7 +716,7 @@ class _Evaluator:
             self.topology,
             coords,
             garment_material(bend, stretch),
-            caps,
+            layer_obstacle(self.mannequin, caps, self.covered),
             settings,
             pos_hint=start,
         )
@@ -840,6 +856,27 @@ def _swarm(lo, hi, size, seed, incumbent, spread: float | None = 0.15) -> Partic
     return swarm
 
 
+def inner_layers(garment: GarmentType | str) -> list[str]:
+    """The garments that can be worn under ``garment`` as layers its drape meets."""
+    rank = LAYER_ORDER.index(GarmentType(garment).value)
+    return [g for g in LAYER_ORDER if g in COVERS and LAYER_ORDER.index(g) < rank]
+
+
+def check_under(garment: GarmentType | str, under: Sequence[str]) -> tuple[str, ...]:
+    """The garments worn under ``garment``, each checked to be an inner layer of it.
+
+    Anything else ends with one line naming ``under`` and the garments allowed.
+    """
+    garment = GarmentType(garment)
+    allowed = inner_layers(garment)
+    for g in under:
+        if g not in allowed:
+            raise InputError(
+                f"under: {g!r} cannot be worn under a {garment.value}; allowed: {allowed}"
+            )
+    return tuple(dict.fromkeys(under))
+
+
 def recover_garment(
     image: np.ndarray,
     garment: GarmentType | str,
@@ -849,6 +886,7 @@ def recover_garment(
     mask: np.ndarray | None = None,
     person: np.ndarray | None = None,
     body_fit: BodyFit | None = None,
+    under: Sequence[str] = (),
     progress: Callable[[str], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> RecoveryResult:
@@ -863,11 +901,14 @@ def recover_garment(
         mask: the garment's pixels, bool (H, W); parsed from the image when missing.
         person: the person's pixels; GrabCut when missing.
         body_fit: a body already fitted to this image (several garments share one).
+        under: garments worn under this one (:func:`check_under`); the drapes meet the body
+            thickened where they cover it, as the evaluation scenes drape an outer layer.
         progress: called with a stage name after every swarm iteration.
         should_stop: polled between drape steps; true ends the recovery early (Ctrl-C).
     """
     settings = settings or RecoverySettings()
     garment = GarmentType(garment)
+    covered = tuple(p for g in check_under(garment, under) for p in COVERS[g])
     timings = dict.fromkeys(("body", "parsing", "simulation", "rendering", "bookkeeping"), 0.0)
     tick = time.perf_counter()
     image = np.asarray(image, np.uint8)
@@ -887,7 +928,9 @@ def recover_garment(
     timings["parsing"] += time.perf_counter() - tick
 
     topology = PatternTopology.build(garment, settings.edge_length)
-    ev = _Evaluator(topology, target, body_fit, camera, light, settings, timings, should_stop)
+    ev = _Evaluator(
+        topology, target, body_fit, camera, light, settings, timings, should_stop, covered
+    )
     # The material and pose steps compare wrinkles, on their own (finer) mesh when set.
     fine = settings.material_edge_length
     if fine is None or fine == settings.edge_length:
@@ -902,6 +945,7 @@ def recover_garment(
             settings,
             timings,
             should_stop,
+            covered,
         )
     history: list[dict] = []
     rng_seed = settings.seed

@@ -193,12 +193,3 @@ def test_a_finer_material_mesh_drapes_the_scenes_finer_in_rows_of_their_own(tmp_
     main([*argv, "--material-edge-length", "0.025"])
     assert made == [(0.05, None, 0.05), (0.05, 0.025, 0.025)]
     assert len(list((tmp_path / "work").iterdir())) == 2
-
-
-def test_the_committed_rows_resume_under_the_default_settings():
-    """An unset setting does not change the rows' folder: the committed rows stay in use."""
-    from apps.garment.recovery import RecoverySettings
-    from benchmarks.thesis.garment_tables import rows_folder, stored_row
-
-    folder = rows_folder(ROOT / "reports" / "garment_tables", RecoverySettings())
-    assert stored_row(folder, "a_midday") is not None
