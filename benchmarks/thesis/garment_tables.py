@@ -361,35 +361,14 @@ PROBE_GARMENTS = ("skirt", "tshirt", "pants")
 """Garments the wrinkle probe drapes."""
 
 
-def wrinkle_probe(
-    edge_length: float, garment: str = "skirt", bends=(1.0, 3.0, 10.0, 30.0, 100.0)
-) -> list[dict]:
-    """Regional curvature K and rendered wrinkle density P of a garment per bend multiplier.
+def _probe_setup(edge_length: float, garment: str) -> dict:
+    """What the probes drape: a garment of pose a, its registration and its obstacle.
 
-    In pose a, under each lighting: what the material step has to work with. The skirt has
-    its default sizing and stretch x1; the t-shirt and the pants have the sizing and stretch
-    of the scenes of pose a, the t-shirt draped over what the pants cover, as there.
-    One row per bend: ``{"bend", "converged", "max_speed", "curvature": {region: K},
-    "density_<light>": {region: P}}`` (whether the drape passed its stopping test in the
-    scenes' 200 steps, and its largest vertex speed [m/s] at the end).
+    The skirt has its default sizing and stretch x1; the t-shirt and the pants have the sizing
+    and stretch of the scenes of pose a, the t-shirt draped over what the pants cover, as there.
     """
-    from apps.garment.image import region_map, wrinkle_density
-    from apps.garment.recovery import _hinges
-    from apps.garment.scenes import (
-        COVERS,
-        LAYER_ORDER,
-        LIGHTINGS,
-        POSES,
-        layer_obstacle,
-        pixel_size,
-    )
-    from simulator.garment.drape import (
-        DrapeSettings,
-        GarmentBatch,
-        drape,
-        garment_material,
-        register_batch,
-    )
+    from apps.garment.scenes import COVERS, LAYER_ORDER, POSES, layer_obstacle
+    from simulator.garment.drape import register_batch
     from simulator.garment.patterns import PatternTopology, build_pattern
 
     body = Mannequin.build()
@@ -404,28 +383,81 @@ def wrinkle_probe(
         layer = LAYER_ORDER.index(garment)
         inner = [g.garment for g in scene.garments if LAYER_ORDER.index(g.garment) < layer]
         covered = [p for g in inner for p in COVERS.get(g, ())]
+    angles = POSES["a"].angles[None]
+    caps = body.capsules(angles)
+    return {
+        "body": body,
+        "topology": topo,
+        "pattern": pattern,
+        "stretch": stretch,
+        "caps": caps,
+        "obstacle": layer_obstacle(body, caps, covered),
+        "start": register_batch(topo, pattern.coords[None], [pattern.params], body, angles),
+    }
+
+
+def _probe_drape(setup: dict, starts: np.ndarray, bends, settings):
+    """Drape the probe's garment from ``starts`` (B, V, 3) at each bend (B)."""
+    from simulator.garment.drape import GarmentBatch, drape, garment_material
+
     n = len(bends)
-    angles = np.repeat(POSES["a"].angles[None], n, 0)
-    coords = np.repeat(pattern.coords[None], n, 0)
-    x0 = register_batch(topo, coords[:1], [pattern.params], body, angles[:1])
-    settings = DrapeSettings(max_steps=200)
-    caps = layer_obstacle(body, body.capsules(angles), covered)
     batch = GarmentBatch.build(
-        topo,
-        coords,
-        garment_material(list(bends), [stretch] * n),
-        caps,
+        setup["topology"],
+        np.repeat(setup["pattern"].coords[None], n, 0),
+        garment_material(list(bends), [setup["stretch"]] * n),
+        np.repeat(setup["obstacle"], n, 0),
         settings,
-        pos_hint=np.repeat(x0, n, 0),
+        pos_hint=starts,
     )
-    result = drape(batch, np.repeat(x0, n, 0), settings)
+    return drape(batch, starts, settings)
+
+
+def _probe_densities(setup: dict, garment: str, pos: np.ndarray, light: str) -> np.ndarray:
+    """Wrinkle density P [1/m] per region of one drape (V, 3) rendered under ``light``."""
+    from apps.garment.image import region_map, wrinkle_density
+    from apps.garment.scenes import pixel_size
+
+    camera = scene_camera()
+    regions = primitive_regions(setup["body"], garment)
+    obstacle = setup["obstacle"][0]
+    image, _, masks = render_scene(
+        camera,
+        scene_light(light),
+        obstacle,
+        [(pos, setup["topology"].tri_indices, GARMENT_COLORS[garment])],
+    )
+    rmap = region_map(camera, obstacle, regions, masks[0])
+    p, _ = wrinkle_density(image, masks[0], rmap, len(REGIONS[garment]), pixel_size(camera))
+    return p
+
+
+def wrinkle_probe(
+    edge_length: float, garment: str = "skirt", bends=(1.0, 3.0, 10.0, 30.0, 100.0)
+) -> list[dict]:
+    """Regional curvature K and rendered wrinkle density P of a garment per bend multiplier.
+
+    In pose a, under each lighting: what the material step has to work with (garments as
+    :func:`_probe_setup` drapes them).
+    One row per bend: ``{"bend", "converged", "max_speed", "curvature": {region: K},
+    "density_<light>": {region: P}}`` (whether the drape passed its stopping test in the
+    scenes' 200 steps, and its largest vertex speed [m/s] at the end).
+    """
+    from apps.garment.recovery import _hinges
+    from apps.garment.scenes import LIGHTINGS
+    from simulator.garment.drape import DrapeSettings
+
+    setup = _probe_setup(edge_length, garment)
+    n = len(bends)
+    topo = setup["topology"]
+    result = _probe_drape(
+        setup, np.repeat(setup["start"], n, 0), bends, DrapeSettings(max_steps=200)
+    )
     pos = result.pos
     names = list(REGIONS[garment])
-    regions = primitive_regions(body, garment)
-    camera = scene_camera()
+    regions = primitive_regions(setup["body"], garment)
     rows = []
     for b, bend in enumerate(bends):
-        vr = vertex_regions(pos[b].numpy(), caps[b], regions)
+        vr = vertex_regions(pos[b].numpy(), setup["obstacle"][0], regions)
         k = regional_curvature(
             pos[b : b + 1],
             torch.as_tensor(topo.tri_indices),
@@ -440,14 +472,7 @@ def wrinkle_probe(
             "curvature": dict(zip(names, k.tolist(), strict=True)),
         }
         for light in LIGHTINGS:
-            image, _, masks = render_scene(
-                camera,
-                scene_light(light),
-                caps[b],
-                [(pos[b].numpy(), topo.tri_indices, GARMENT_COLORS[garment])],
-            )
-            rmap = region_map(camera, caps[b], regions, masks[0])
-            p, _ = wrinkle_density(image, masks[0], rmap, len(names), pixel_size(camera))
+            p = _probe_densities(setup, garment, pos[b].numpy(), light)
             row[f"density_{light}"] = dict(zip(names, p.tolist(), strict=True))
         rows.append(row)
     return rows
