@@ -478,6 +478,52 @@ def wrinkle_probe(
     return rows
 
 
+def start_probe(
+    edge_length: float, garment: str = "tshirt", bends=(2.0, 8.0, 32.0), light: str = "midday"
+) -> dict:
+    """Whether a recovery particle's wrinkles follow its bend or the drape it started from.
+
+    The garment of pose a (:func:`_probe_setup`) is settled at each bend as the scenes are
+    (200 steps from its registration); from each settled drape it is then re-draped at each
+    bend as a material particle is (:class:`apps.garment.recovery.RecoverySettings`'
+    ``drape_steps`` and ``drape_speed_tol``). Returns ``{"bends", "regions", "settled": P per
+    bend and region, "particles": P per start bend, particle bend and region}`` [1/m].
+    """
+    from simulator.garment.drape import DrapeSettings
+
+    defaults = RecoverySettings()
+    setup = _probe_setup(edge_length, garment)
+    n = len(bends)
+    settled = _probe_drape(
+        setup, np.repeat(setup["start"], n, 0), bends, DrapeSettings(max_steps=200)
+    ).pos.numpy()
+    particle = DrapeSettings(
+        max_steps=defaults.drape_steps, speed_tol=defaults.drape_speed_tol, capsule_margin=0.12
+    )
+    starts = np.repeat(settled, n, 0)  # start i, bend j at row i * n + j
+    moved = _probe_drape(setup, starts, list(bends) * n, particle).pos.numpy()
+    read = [_probe_densities(setup, garment, p, light) for p in (*settled, *moved)]
+    return {
+        "bends": list(bends),
+        "regions": list(REGIONS[garment]),
+        "settled": [r.tolist() for r in read[:n]],
+        "particles": [[read[n + i * n + j].tolist() for j in range(n)] for i in range(n)],
+    }
+
+
+def print_start_probe(probe: dict) -> None:
+    """Per region: P of the settled drapes, then a row of particle P per start."""
+    bends = probe["bends"]
+    head = " ".join(f"{f'x{b:g}':>7s}" for b in bends)
+    for r, region in enumerate(probe["regions"]):
+        print(f"{region + ': P [1/m] at bend':<28s}{head}")
+        cells = " ".join(f"{v[r]:7.2f}" for v in probe["settled"])
+        print(f"  {'settled (200 steps)':<26s}{cells}")
+        for b, row in zip(bends, probe["particles"], strict=True):
+            cells = " ".join(f"{v[r]:7.2f}" for v in row)
+            print(f"  {f'particle from x{b:g}':<26s}{cells}")
+
+
 def print_probe(rows: list[dict]) -> None:
     """The probe's K and P per bend multiplier, one column per region and light."""
     columns = [k for k in rows[0] if isinstance(rows[0][k], dict)]
@@ -687,6 +733,14 @@ def main(argv: list[str] | None = None) -> dict:
         "skirt) per bending multiplier",
     )
     parser.add_argument(
+        "--start-probe",
+        nargs="?",
+        const="tshirt",
+        choices=PROBE_GARMENTS,
+        help="only the start probe: P [1/m] per region of particle drapes (bend x2, x8, x32) "
+        "started from drapes settled at each of those bends (default the t-shirt)",
+    )
+    parser.add_argument(
         "--table",
         action="store_true",
         help="only print the Markdown tables of the results file (--out, default the docs')",
@@ -726,6 +780,12 @@ def main(argv: list[str] | None = None) -> dict:
 
     def log(text: str) -> None:
         print(text, flush=True)
+
+    if args.start_probe:
+        probe = start_probe(settings.edge_length, args.start_probe)
+        print_start_probe(probe)
+        print(json.dumps(probe))
+        return {"start_probe": probe}
 
     if args.probe:
         probe = wrinkle_probe(settings.edge_length, args.probe)

@@ -193,3 +193,16 @@ def test_a_finer_material_mesh_drapes_the_scenes_finer_in_rows_of_their_own(tmp_
     main([*argv, "--material-edge-length", "0.025"])
     assert made == [(0.05, None, 0.05), (0.05, 0.025, 0.025)]
     assert len(list((tmp_path / "work").iterdir())) == 2
+
+
+def test_the_start_probe_reads_a_particle_per_start_and_bend(capsys):
+    from benchmarks.thesis.garment_tables import print_start_probe, start_probe
+
+    probe = start_probe(0.12, "tshirt", bends=(2.0, 32.0))
+    assert probe["regions"] == ["body", "sleeves"]
+    assert np.asarray(probe["settled"]).shape == (2, 2)
+    particles = np.asarray(probe["particles"])
+    assert particles.shape == (2, 2, 2) and np.isfinite(particles).all()
+    assert (particles >= 0).all()
+    print_start_probe(probe)
+    assert "particle from x32" in capsys.readouterr().out
