@@ -70,6 +70,7 @@ from apps.garment.scenes import (
 from common.files import atomic_write_bytes
 from simulator.garment.body import JOINTS, Mannequin, Pose, joint_angle_errors
 from simulator.garment.curvature import regional_curvature
+from simulator.garment.patterns import Pattern
 from simulator.threads import use_process_threads
 
 THESIS = {
@@ -361,8 +362,22 @@ PROBE_GARMENTS = ("skirt", "tshirt", "pants")
 """Garments the wrinkle probe drapes."""
 
 
-def _probe_setup(edge_length: float, garment: str) -> dict:
-    """What the probes drape: a garment of pose a, its registration and its obstacle.
+@dataclasses.dataclass(frozen=True)
+class ProbeGarment:
+    """What the probes drape: a garment of pose a, its registration and its obstacle."""
+
+    garment: str
+    body: Mannequin
+    pattern: Pattern
+    stretch: float
+    obstacle: np.ndarray
+    """Body capsules as the garment meets them [m], shape (1, C, 7)."""
+    start: np.ndarray
+    """The registered garment [m], shape (1, V, 3)."""
+
+
+def _probe_setup(edge_length: float, garment: str) -> ProbeGarment:
+    """The probes' garment of pose a, registered, with its obstacle.
 
     The skirt has its default sizing and stretch x1; the t-shirt and the pants have the sizing
     and stretch of the scenes of pose a, the t-shirt draped over what the pants cover, as there.
@@ -384,47 +399,46 @@ def _probe_setup(edge_length: float, garment: str) -> dict:
         inner = [g.garment for g in scene.garments if LAYER_ORDER.index(g.garment) < layer]
         covered = [p for g in inner for p in COVERS.get(g, ())]
     angles = POSES["a"].angles[None]
-    caps = body.capsules(angles)
-    return {
-        "body": body,
-        "topology": topo,
-        "pattern": pattern,
-        "stretch": stretch,
-        "caps": caps,
-        "obstacle": layer_obstacle(body, caps, covered),
-        "start": register_batch(topo, pattern.coords[None], [pattern.params], body, angles),
-    }
+    return ProbeGarment(
+        garment=garment,
+        body=body,
+        pattern=pattern,
+        stretch=stretch,
+        obstacle=layer_obstacle(body, body.capsules(angles), covered),
+        start=register_batch(topo, pattern.coords[None], [pattern.params], body, angles),
+    )
 
 
-def _probe_drape(setup: dict, starts: np.ndarray, bends, settings):
+def _probe_drape(setup: ProbeGarment, starts: np.ndarray, bends, settings):
     """Drape the probe's garment from ``starts`` (B, V, 3) at each bend (B)."""
     from simulator.garment.drape import GarmentBatch, drape, garment_material
 
     n = len(bends)
     batch = GarmentBatch.build(
-        setup["topology"],
-        np.repeat(setup["pattern"].coords[None], n, 0),
-        garment_material(list(bends), [setup["stretch"]] * n),
-        np.repeat(setup["obstacle"], n, 0),
+        setup.pattern.topology,
+        np.repeat(setup.pattern.coords[None], n, 0),
+        garment_material(list(bends), [setup.stretch] * n),
+        np.repeat(setup.obstacle, n, 0),
         settings,
         pos_hint=starts,
     )
     return drape(batch, starts, settings)
 
 
-def _probe_densities(setup: dict, garment: str, pos: np.ndarray, light: str) -> np.ndarray:
+def _probe_densities(setup: ProbeGarment, pos: np.ndarray, light: str) -> np.ndarray:
     """Wrinkle density P [1/m] per region of one drape (V, 3) rendered under ``light``."""
     from apps.garment.image import region_map, wrinkle_density
     from apps.garment.scenes import pixel_size
 
+    garment = setup.garment
     camera = scene_camera()
-    regions = primitive_regions(setup["body"], garment)
-    obstacle = setup["obstacle"][0]
+    regions = primitive_regions(setup.body, garment)
+    obstacle = setup.obstacle[0]
     image, _, masks = render_scene(
         camera,
         scene_light(light),
         obstacle,
-        [(pos, setup["topology"].tri_indices, GARMENT_COLORS[garment])],
+        [(pos, setup.pattern.topology.tri_indices, GARMENT_COLORS[garment])],
     )
     rmap = region_map(camera, obstacle, regions, masks[0])
     p, _ = wrinkle_density(image, masks[0], rmap, len(REGIONS[garment]), pixel_size(camera))
@@ -448,16 +462,14 @@ def wrinkle_probe(
 
     setup = _probe_setup(edge_length, garment)
     n = len(bends)
-    topo = setup["topology"]
-    result = _probe_drape(
-        setup, np.repeat(setup["start"], n, 0), bends, DrapeSettings(max_steps=200)
-    )
+    topo = setup.pattern.topology
+    result = _probe_drape(setup, np.repeat(setup.start, n, 0), bends, DrapeSettings(max_steps=200))
     pos = result.pos
     names = list(REGIONS[garment])
-    regions = primitive_regions(setup["body"], garment)
+    regions = primitive_regions(setup.body, garment)
     rows = []
     for b, bend in enumerate(bends):
-        vr = vertex_regions(pos[b].numpy(), setup["obstacle"][0], regions)
+        vr = vertex_regions(pos[b].numpy(), setup.obstacle[0], regions)
         k = regional_curvature(
             pos[b : b + 1],
             torch.as_tensor(topo.tri_indices),
@@ -472,7 +484,7 @@ def wrinkle_probe(
             "curvature": dict(zip(names, k.tolist(), strict=True)),
         }
         for light in LIGHTINGS:
-            p = _probe_densities(setup, garment, pos[b].numpy(), light)
+            p = _probe_densities(setup, pos[b].numpy(), light)
             row[f"density_{light}"] = dict(zip(names, p.tolist(), strict=True))
         rows.append(row)
     return rows
@@ -495,14 +507,14 @@ def start_probe(
     setup = _probe_setup(edge_length, garment)
     n = len(bends)
     settled = _probe_drape(
-        setup, np.repeat(setup["start"], n, 0), bends, DrapeSettings(max_steps=200)
+        setup, np.repeat(setup.start, n, 0), bends, DrapeSettings(max_steps=200)
     ).pos.numpy()
     particle = DrapeSettings(
         max_steps=defaults.drape_steps, speed_tol=defaults.drape_speed_tol, capsule_margin=0.12
     )
     starts = np.repeat(settled, n, 0)  # start i, bend j at row i * n + j
     moved = _probe_drape(setup, starts, list(bends) * n, particle).pos.numpy()
-    read = [_probe_densities(setup, garment, p, light) for p in (*settled, *moved)]
+    read = [_probe_densities(setup, p, light) for p in (*settled, *moved)]
     return {
         "bends": list(bends),
         "regions": list(REGIONS[garment]),
