@@ -1049,8 +1049,8 @@ def recover_garment(
                     progress(stage)
             if ev_m is ev:
                 x_s = x_m
-            else:
-                # The sizing mesh's incumbent, re-draped with the new material.
+            elif stage == "material":
+                # The next sizing step's incumbent, re-draped on its mesh with the new material.
                 pos, _, _ = drape_one(ev, carry(x_m, ev_m, ev), settings.drape_steps)
                 x_s, f_best["sizing"] = pos[0], float(ev.silhouette(pos)[0])
 
