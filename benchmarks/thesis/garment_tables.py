@@ -382,7 +382,7 @@ def _probe_setup(edge_length: float, garment: str) -> ProbeGarment:
     The skirt has its default sizing and stretch x1; the t-shirt and the pants have the sizing
     and stretch of the scenes of pose a, the t-shirt draped over what the pants cover, as there.
     """
-    from apps.garment.scenes import COVERS, LAYER_ORDER, POSES, layer_obstacle
+    from apps.garment.scenes import COVERS, POSES, layer_obstacle
     from simulator.garment.drape import register_batch
     from simulator.garment.patterns import PatternTopology, build_pattern
 
@@ -395,9 +395,8 @@ def _probe_setup(edge_length: float, garment: str) -> ProbeGarment:
         spec = next(g for g in scene.garments if g.garment == garment)
         pattern = build_pattern(garment, spec.params, topology=topo)
         stretch = spec.material["stretch"]
-        layer = LAYER_ORDER.index(garment)
-        inner = [g.garment for g in scene.garments if LAYER_ORDER.index(g.garment) < layer]
-        covered = [p for g in inner for p in COVERS.get(g, ())]
+        inner = [g.garment for g in scene.garments if g.garment in inner_layers(garment)]
+        covered = [p for g in inner for p in COVERS[g]]
     angles = POSES["a"].angles[None]
     return ProbeGarment(
         garment=garment,
