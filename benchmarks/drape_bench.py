@@ -18,33 +18,24 @@ import numpy as np
 import torch
 
 import simulator.solvers.newton as newton
-from apps.garment.scenes import COVERS, POSES, SCENES, layer_obstacle
-from simulator.garment.body import Mannequin
-from simulator.garment.drape import (
-    DrapeSettings,
-    GarmentBatch,
-    drape,
-    garment_material,
-    register_batch,
-)
-from simulator.garment.patterns import PatternTopology, build_pattern
+from apps.garment.scenes import SCENES
+from benchmarks.thesis.garment_tables import probe_garment
+from simulator.garment.drape import DrapeSettings, GarmentBatch, drape, garment_material
 from simulator.threads import use_process_threads
 
 
 def tshirt_batch(edge_length: float, batch: int, steps: int):
     """The t-shirt of pose a as a drape batch, its start positions and drape settings."""
+    garment = probe_garment(edge_length, "tshirt")
     spec = next(g for g in SCENES[0].garments if g.garment == "tshirt")
-    body = Mannequin.build()
-    topo = PatternTopology.build("tshirt", edge_length)
-    pattern = build_pattern("tshirt", spec.params, topology=topo)
-    angles = np.repeat(POSES["a"].angles[None], batch, 0)
-    coords = np.repeat(pattern.coords[None], batch, 0)
-    x0 = np.repeat(register_batch(topo, coords[:1], [pattern.params], body, angles[:1]), batch, 0)
+    coords = np.repeat(garment.pattern.coords[None], batch, 0)
+    x0 = np.repeat(garment.start, batch, 0)
     settings = DrapeSettings(max_steps=steps, speed_tol=0.0)
-    caps = layer_obstacle(body, body.capsules(angles), COVERS["pants"])
-    material = garment_material([spec.material["bend"]] * batch, [spec.material["stretch"]] * batch)
-    built = GarmentBatch.build(topo, coords, material, caps, settings, pos_hint=x0)
-    return built, x0, settings, len(pattern.coords)
+    caps = np.repeat(garment.obstacle, batch, 0)
+    material = garment_material([spec.material["bend"]] * batch, [garment.stretch] * batch)
+    topology = garment.pattern.topology
+    built = GarmentBatch.build(topology, coords, material, caps, settings, pos_hint=x0)
+    return built, x0, settings, len(garment.pattern.coords)
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -376,7 +376,7 @@ class ProbeGarment:
     """The registered garment [m], shape (1, V, 3)."""
 
 
-def _probe_setup(edge_length: float, garment: str) -> ProbeGarment:
+def probe_garment(edge_length: float, garment: str) -> ProbeGarment:
     """The probes' garment of pose a, registered, with its obstacle.
 
     The skirt has its default sizing and stretch x1; the t-shirt and the pants have the sizing
@@ -450,7 +450,7 @@ def wrinkle_probe(
     """Regional curvature K and rendered wrinkle density P of a garment per bend multiplier.
 
     In pose a, under each lighting: what the material step has to work with (garments as
-    :func:`_probe_setup` drapes them).
+    :func:`probe_garment` drapes them).
     One row per bend: ``{"bend", "converged", "max_speed", "curvature": {region: K},
     "density_<light>": {region: P}}`` (whether the drape passed its stopping test in the
     scenes' 200 steps, and its largest vertex speed [m/s] at the end).
@@ -459,7 +459,7 @@ def wrinkle_probe(
     from apps.garment.scenes import LIGHTINGS
     from simulator.garment.drape import DrapeSettings
 
-    setup = _probe_setup(edge_length, garment)
+    setup = probe_garment(edge_length, garment)
     n = len(bends)
     topo = setup.pattern.topology
     result = _probe_drape(setup, np.repeat(setup.start, n, 0), bends, DrapeSettings(max_steps=200))
@@ -494,7 +494,7 @@ def start_probe(
 ) -> dict:
     """Whether a recovery particle's wrinkles follow its bend or the drape it started from.
 
-    The garment of pose a (:func:`_probe_setup`) is settled at each bend as the scenes are
+    The garment of pose a (:func:`probe_garment`) is settled at each bend as the scenes are
     (200 steps from its registration); from each settled drape it is then re-draped at each
     bend as a material particle is (:class:`apps.garment.recovery.RecoverySettings`'
     ``drape_steps`` and ``drape_speed_tol``). Returns ``{"bends", "regions", "settled": P per
@@ -503,7 +503,7 @@ def start_probe(
     from simulator.garment.drape import DrapeSettings
 
     defaults = RecoverySettings()
-    setup = _probe_setup(edge_length, garment)
+    setup = probe_garment(edge_length, garment)
     n = len(bends)
     settled = _probe_drape(
         setup, np.repeat(setup.start, n, 0), bends, DrapeSettings(max_steps=200)
